@@ -1,0 +1,34 @@
+# Two entry points do everything on a fresh Debian machine: `make demo` and `make test`.
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+SCENARIO ?= highway-omni-near
+export PYOPENGL_PLATFORM := osmesa
+
+.PHONY: setup demo test lint bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@dpkg -s libosmesa6 >/dev/null 2>&1 || { apt-get update && apt-get install -y libosmesa6; }
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[dev]"
+	# pyrender 0.1.45 pins PyOpenGL==3.1.0, whose OSMesa binding lacks
+	# OSMesaCreateContextAttribs: install a working PyOpenGL over it (NOTES.md).
+	$(PY) -m pip install --quiet "PyOpenGL==3.1.10"
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/omnibench run $(SCENARIO) --out renders/demo
+
+test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(VENV)/bin/omnibench bench render
+
+clean:
+	rm -rf $(VENV) renders/demo
