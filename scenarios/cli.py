@@ -1,0 +1,172 @@
+"""The ``omnibench`` command line."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+
+import typer  # noqa: E402
+from rich.console import Console  # noqa: E402
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="Simulation bench for omni-camera ego-motion and surround vehicle detection.")
+bench_app = typer.Typer(no_args_is_help=True, help="Speed benchmarks (median ms or frames/s).")
+app.add_typer(bench_app, name="bench")
+console = Console(stderr=True)
+
+
+def _fail(msg: str) -> None:
+    console.print(f"[red]error:[/red] {msg}")
+    raise typer.Exit(2)
+
+
+@app.command("scenarios")
+def list_scenarios() -> None:
+    """List the shipped scenarios."""
+    from scenarios.config import known_scenarios
+
+    for name in known_scenarios():
+        print(name)
+
+
+@app.command()
+def render(
+    scenario: str = typer.Argument(..., help="scenario name or path to a YAML file"),
+    out: Path = typer.Option(..., "--out", help="output folder (resumes if it holds a partial render)"),
+    frames: int | None = typer.Option(None, help="render only the first N frames"),
+    face_px: int | None = typer.Option(None, help="cube-map face size [px]"),
+) -> None:
+    """Render a scenario: frames, ids, range, groundtruth.jsonl, camera.yaml, drive.mp4."""
+    from scenarios.config import ScenarioError, load_scenario
+    from sim.drive import DriveError, render_drive
+
+    try:
+        sc = load_scenario(scenario)
+        res = render_drive(sc, out, face_px=face_px, max_frames=frames)
+    except (ScenarioError, DriveError, ValueError) as e:
+        _fail(str(e))
+    console.print(f"{res.n_frames} frames in {out} ({res.rendered} rendered now, "
+                  f"{res.render_ms_per_frame:.0f} ms/frame)")
+
+
+@app.command()
+def calibrate(
+    points: Path = typer.Argument(..., help="CSV of world/image correspondences"),
+    out: Path = typer.Option(..., "--out", help="camera YAML to write"),
+    boundary: Path | None = typer.Option(None, help="CSV u,v of field-of-view boundary points"),
+    width: int = typer.Option(640), height: int = typer.Option(640),
+    max_elevation_deg: float = typer.Option(5.0), body_mask_deg: float = typer.Option(75.0),
+) -> None:
+    """Calibrate a hyperbolic omni camera (paper section 3.2) and write camera.yaml."""
+    from estimator.calibration import CalibrationError, calibrate_csv
+    from estimator.camera_io import save_camera
+    from estimator.mount import CameraMount
+
+    try:
+        cam, report = calibrate_csv(points, boundary_csv=boundary, width=width, height=height,
+                                    max_elevation_deg=max_elevation_deg,
+                                    body_mask_deg=body_mask_deg)
+    except (CalibrationError, ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+    save_camera(out, cam, CameraMount())
+    print(report.summary() if hasattr(report, "summary") else report)
+    console.print(f"wrote {out}")
+
+
+@bench_app.command("render")
+def bench_render(
+    frames: int = typer.Option(20, help="frames to time after warm-up"),
+    camera: str = typer.Option("omni-far", help="camera preset"),
+    vehicles: int = typer.Option(30, help="vehicles on the highway"),
+    as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
+) -> None:
+    """Frames/s of the full omni frame production (render + ray map + sensor) of a highway."""
+    from sim.bench import bench_render as run
+
+    res = run(n_frames=frames, camera=camera, vehicles=vehicles)
+    console.print(f"render: {res['frames_per_s']:.2f} frames/s "
+                  f"({res['ms_per_frame']:.0f} ms/frame median over {res['frames']} frames, "
+                  f"{res['width']}x{res['height']}, {res['vehicles']} vehicles)")
+    if as_json:
+        print(json.dumps(res))
+
+
+def main() -> None:
+    try:
+        app()
+    except KeyboardInterrupt:
+        console.print("interrupted: run the same command again to resume")
+        sys.exit(130)
+
+
+@app.command()
+def run(
+    scenario: str = typer.Argument(..., help="scenario name or path to a YAML file"),
+    out: Path = typer.Option(..., "--out", help="output folder"),
+    estimator: str = typer.Option("direct", help="direct | can-only | features"),
+    frames: int | None = typer.Option(None, help="only the first N frames"),
+) -> None:
+    """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
+    from scenarios.config import ScenarioError, load_scenario
+    from scenarios.runner import run_scenario
+    from sim.drive import DriveError
+
+    try:
+        sc = load_scenario(scenario)
+        m = run_scenario(sc, out, estimator=estimator, max_frames=frames)
+    except (ScenarioError, DriveError, ValueError) as e:
+        _fail(str(e))
+    e = m["ego"]
+    console.print(
+        f"{sc.name} [{estimator}] speed RMSE {e['speed_rmse_mps']:.3f} m/s "
+        f"({e['speed_rmse_pct']:.2f} %, prior {e['prior_speed_rmse_mps']:.3f}), yaw-rate RMSE "
+        f"{e['yaw_rate_rmse_dps']:.3f} deg/s (prior {e['prior_yaw_rate_rmse_dps']:.3f}), "
+        f"A RMSE {e['angle_rmse_deg']:.3f} deg; {m['timing']['estimate_ms_per_frame']:.1f} "
+        f"ms/frame -> {out}/metrics.json")
+
+
+@app.command()
+def estimate(
+    video: Path = typer.Argument(..., help="video file or folder of frames"),
+    camera: Path = typer.Option(..., help="camera YAML (intrinsics + mount)"),
+    can: Path = typer.Option(..., help="CAN CSV with columns t_s,speed_mps"),
+    out: Path = typer.Option(..., "--out", help="output folder"),
+    estimator: str = typer.Option("direct", help="direct | can-only | features"),
+    timestamps: Path | None = typer.Option(None, help="CSV frame,t_s (default: from fps)"),
+    fps: float | None = typer.Option(None, help="frame rate when the video has none"),
+) -> None:
+    """Estimate ego-motion of any recording; writes OUT/egomotion.csv."""
+    import numpy as np
+
+    from estimator.camera_io import load_camera
+    from estimator.pipeline import estimate_frames, write_egomotion_csv
+    from estimator.recording import (
+        RecordingError,
+        iter_frames,
+        read_can_csv,
+        read_timestamps_csv,
+        video_fps,
+    )
+
+    try:
+        cam, mount = load_camera(camera)
+        can_track = read_can_csv(can)
+        if timestamps is not None:
+            times = read_timestamps_csv(timestamps)
+        else:
+            rate = fps or video_fps(video)
+            if rate is None:
+                raise RecordingError(f"{video}: no frame rate known: give --fps or --timestamps")
+            times = np.arange(100000) / rate
+        run = estimate_frames(iter_frames(video), times, can_track, cam, mount,
+                              estimator=estimator, progress=True)
+        out.mkdir(parents=True, exist_ok=True)
+        write_egomotion_csv(out / "egomotion.csv", run.records, mount)
+    except (RecordingError, ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+    console.print(f"{len(run.records)} frames, {run.ms_per_frame:.1f} ms/frame -> "
+                  f"{out}/egomotion.csv")

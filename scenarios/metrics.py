@@ -1,0 +1,113 @@
+"""Ground-truth metrics of the ego-motion estimate.
+
+The estimate of frame k describes the motion from frame k-1 to k, with A the
+angular displacement at k-1 (docs/CONVENTIONS.md); ground truth gives the same
+quantities in ``motion_from_prev``. Speeds and yaw rates are compared in the car
+frame: forward speed = (R_car_cam V)_x, yaw rate = (R_car_cam W)_z.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from estimator.mount import CameraMount
+
+STATE_COLS = ["V_x", "V_y", "V_z", "W_x", "W_y", "W_z", "A_x", "A_y", "A_z"]
+
+
+def read_egomotion_csv(path: Path) -> dict[str, np.ndarray]:
+    """Columns of egomotion.csv as arrays (frame as int)."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        return {}
+    out = {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows]) for k in rows[0]}
+    out["frame"] = out["frame"].astype(int)
+    return out
+
+
+def _rmse(e: np.ndarray) -> float:
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+
+
+def ego_series(est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount) -> dict:
+    """Aligned time series (frames with both estimate and truth) in car-frame units.
+
+    Returns t_s, speed (est, gt, prior) [m/s], yaw rate (est, gt, prior) [deg/s],
+    A (est, gt) (N, 3) [deg].
+    """
+    R = mount.R_car_cam
+    by_frame = {g["frame"]: g for g in gt}
+    rows = [i for i, f in enumerate(est["frame"])
+            if f in by_frame and by_frame[f]["motion_from_prev"] is not None]
+    V = np.stack([est[c][rows] for c in STATE_COLS[0:3]], axis=1)
+    W = np.stack([est[c][rows] for c in STATE_COLS[3:6]], axis=1)
+    A = np.stack([est[c][rows] for c in STATE_COLS[6:9]], axis=1)
+    g = [by_frame[int(est["frame"][i])]["motion_from_prev"] for i in rows]
+    Vg = np.array([m["V_mps"] for m in g])
+    Wg = np.array([m["W_rps"] for m in g])
+    Ag = np.array([m["A_rad"] for m in g])
+    prior = np.array([by_frame[int(est["frame"][i])]["can_speed_mps"] for i in rows])
+    return {
+        "t_s": est["t_s"][rows],
+        "speed_est": (V @ R.T)[:, 0], "speed_gt": (Vg @ R.T)[:, 0], "speed_prior": prior,
+        "yaw_est": np.degrees((W @ R.T)[:, 2]), "yaw_gt": np.degrees((Wg @ R.T)[:, 2]),
+        "yaw_prior": np.zeros(len(rows)),
+        "A_est": np.degrees(A), "A_gt": np.degrees(Ag),
+    }
+
+
+def ego_metrics(series: dict) -> dict:
+    """The ``ego`` section of metrics.json."""
+    s = series
+    mean_speed = float(np.nanmean(np.abs(s["speed_gt"])))
+    speed_rmse = _rmse(s["speed_est"] - s["speed_gt"])
+    return {
+        "speed_rmse_mps": speed_rmse,
+        "speed_rmse_pct": 100.0 * speed_rmse / mean_speed if mean_speed > 0 else float("nan"),
+        "yaw_rate_rmse_dps": _rmse(s["yaw_est"] - s["yaw_gt"]),
+        "angle_rmse_deg": _rmse((s["A_est"] - s["A_gt"]).ravel()),
+        "prior_speed_rmse_mps": _rmse(s["speed_prior"] - s["speed_gt"]),
+        "prior_yaw_rate_rmse_dps": _rmse(s["yaw_prior"] - s["yaw_gt"]),
+        "prior_angle_rmse_deg": _rmse(s["A_gt"].ravel()),
+        "mean_speed_mps": mean_speed,
+        "frames_compared": len(s["t_s"]),
+    }
+
+
+def plot_ego_errors(series: dict, path: Path, title: str = "") -> None:
+    """Speed, yaw rate and A against ground truth and the CAN prior (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.fileio import atomic_write
+
+    s = series
+    fig, ax = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True)
+    t = s["t_s"]
+    ax[0].plot(t, s["speed_gt"], "k-", lw=2, label="ground truth")
+    ax[0].plot(t, s["speed_prior"], "-", color="tab:orange", lw=1, label="CAN prior")
+    ax[0].plot(t, s["speed_est"], "-", color="tab:blue", lw=1.2, label="estimate")
+    ax[0].set_ylabel("forward speed [m/s]")
+    ax[0].legend(loc="best", fontsize=8)
+    ax[1].plot(t, s["yaw_gt"], "k-", lw=2, label="ground truth")
+    ax[1].plot(t, s["yaw_est"], "-", color="tab:blue", lw=1.2, label="estimate")
+    ax[1].set_ylabel("yaw rate [deg/s]")
+    for i, (name, col) in enumerate((("roll", "tab:red"), ("pitch", "tab:green"))):
+        # A in camera axes; show its two largest-variance components
+        ax[2].plot(t, s["A_gt"][:, i], "-", color=col, lw=2, alpha=0.5, label=f"A[{i}] truth")
+        ax[2].plot(t, s["A_est"][:, i], "--", color=col, lw=1, label=f"A[{i}] estimate")
+        del name
+    ax[2].set_ylabel("A [deg]")
+    ax[2].set_xlabel("time [s]")
+    ax[2].legend(loc="best", fontsize=7, ncol=2)
+    fig.suptitle(title)
+    fig.tight_layout()
+    atomic_write(path, lambda p: fig.savefig(p, dpi=90), suffix=".png")
+    plt.close(fig)

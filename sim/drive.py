@@ -1,0 +1,384 @@
+"""Render a scenario into a drive folder: frames, ids, range, ground truth, video.
+
+Layout of ``out/``::
+
+    frames/NNNNNN.png   omni (or pinhole) RGB frames after sensor effects
+    ids/NNNNNN.png      uint16 vehicle id + 1 per pixel (0 = no vehicle)
+    range/NNNNNN.png    uint16 range along the ray [cm] (0 = sky / nothing)
+    gt/NNNNNN.json      per-frame ground truth, written last: marks the frame done
+    groundtruth.jsonl   all frames, assembled when every frame is done
+    can.csv             CAN messages (t_s, speed_mps)
+    timestamps.csv      frame times (frame, t_s)
+    camera.yaml         the camera and its mount
+    scenario.yaml       the resolved scenario
+    drive.mp4           the frames as a video
+    manifest.json       written last: {"complete": true, ...}
+
+Every file is written atomically. An interrupted render resumes: the world is
+re-simulated (deterministic under the seed) and finished frames are skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator.camera import CameraModel
+from estimator.camera_io import resolve_camera, save_camera
+from estimator.mount import CameraMount
+from scenarios.config import Scenario
+from estimator import fileio as io
+from sim.camera_motion import (
+    CameraPose,
+    T_world_car,
+    Vibration,
+    camera_pose,
+    motion_between,
+)
+from sim.can import can_at, can_messages
+from sim.gl import pyrender
+from sim.highway import WorldFrame, simulate
+from sim.renderer import OmniRenderer
+from sim.scene import build_static_scene, decode_id_image, vehicle_corners_world, vehicles_mesh
+from sim.sensor import SensorModel, apply_sensor, gain_sequence, vignetting_gain
+
+SKY_RGB = (0.62, 0.74, 0.90)
+
+
+class DriveError(RuntimeError):
+    """A drive folder that cannot be (re)used."""
+
+
+def frame_name(k: int) -> str:
+    return f"{k:06d}"
+
+
+@dataclass
+class DriveResult:
+    out_dir: Path
+    n_frames: int
+    rendered: int
+    render_ms_per_frame: float
+
+
+def default_face_px(camera: CameraModel) -> int:
+    """Cube-face size that roughly matches the camera's sampling at its rim."""
+    return int(np.clip(2 ** np.ceil(np.log2(max(camera.width, camera.height) * 0.75)), 128, 1024))
+
+
+class WorldScenes:
+    """pyrender colour and id scenes of one drive: static world + per-frame vehicles."""
+
+    def __init__(self, static_meshes: list, id_static: list) -> None:
+        self.color = pyrender.Scene(bg_color=[*SKY_RGB, 1.0], ambient_light=[0.35, 0.35, 0.35])
+        self.ids = pyrender.Scene(bg_color=[0, 0, 0, 1.0], ambient_light=[1.0, 1.0, 1.0])
+        for m in static_meshes:
+            self.color.add(pyrender.Mesh.from_trimesh(m, smooth=False))
+        for m in id_static:
+            self.ids.add(pyrender.Mesh.from_trimesh(m, smooth=False))
+        sun = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
+        # sun from the south-west, 50 degrees up
+        d = np.array([0.45, 0.55, -0.7])
+        self.color.add(sun, pose=_look_pose(d))
+        self._veh_nodes: list = []
+
+    def set_vehicles(self, frame: WorldFrame) -> None:
+        for scene, node in self._veh_nodes:
+            scene.remove_node(node)
+        self._veh_nodes = []
+        vehicles = (frame.ego, *frame.others)
+        for scene, mode in ((self.color, "color"), (self.ids, "id")):
+            mesh = vehicles_mesh(vehicles, mode=mode)
+            if mesh is not None:
+                node = scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=False))
+                self._veh_nodes.append((scene, node))
+
+
+def _look_pose(direction: np.ndarray) -> np.ndarray:
+    """Pose whose -z axis points along ``direction`` (for a directional light)."""
+    z = -direction / np.linalg.norm(direction)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], axis=1)
+    return T
+
+
+def _black_copy(mesh):
+    import trimesh
+
+    m = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
+    m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=np.tile([0, 0, 0, 255],
+                                                                    (len(m.vertices), 1)))
+    return m
+
+
+def static_scene_for(frames: list[WorldFrame], scenario: Scenario, bridge_road, seed: int):
+    xs = np.array([f.ego.x_m for f in frames])
+    ys = np.array([f.ego.y_m for f in frames])
+    r = scenario.view_range_m
+    area = (xs.min() - r, xs.max() + r, ys.min() - r, ys.max() + r)
+    rng = np.random.default_rng([seed, 1])
+    meshes = build_static_scene(bridge_road, area, rng)
+    return meshes, [_black_copy(m) for m in meshes]
+
+
+def _vehicle_record(v, T_world_cam_nominal: np.ndarray, visible_px: int) -> dict:
+    box_w = vehicle_corners_world(v)
+    T_cw = np.linalg.inv(T_world_cam_nominal)
+    box_c = box_w @ T_cw[:3, :3].T + T_cw[:3, 3]
+    return {
+        "id": v.id, "x_m": v.x_m, "y_m": v.y_m, "yaw_rad": v.yaw_rad, "speed_mps": v.speed_mps,
+        "yaw_rate_rps": v.yaw_rate_rps, "length_m": v.length_m, "width_m": v.width_m,
+        "height_m": v.height_m, "box_world_m": box_w.round(4), "box_cam_m": box_c.round(4),
+        "visible_px": int(visible_px),
+    }
+
+
+def static_flow_px(camera: CameraModel, rays: np.ndarray, range_m: np.ndarray, a: CameraPose,
+                   b: CameraPose) -> np.ndarray:
+    """(H, W, 2) image motion of the static scene between poses a and b [px].
+
+    rays: (H, W, 3) unit rays of the actual camera at a; range_m: (H, W), inf for sky.
+    """
+    H, W = range_m.shape
+    d = rays.reshape(-1, 3).astype(np.float64)
+    r = range_m.reshape(-1).astype(np.float64)
+    R_wa, R_wb = a.T_world_actual[:3, :3], b.T_world_actual[:3, :3]
+    R_ba = R_wb.T @ R_wa
+    t_ba = -R_wb.T @ (b.T_world_actual[:3, 3] - a.T_world_actual[:3, 3])
+    finite = np.isfinite(r) & np.all(np.isfinite(d), axis=1)
+    P_b = d @ R_ba.T  # points at infinity: rotation only
+    P_b[finite] += t_ba / r[finite, None]  # divide by range: direction of R P + t
+    w_a = camera.project(d)
+    w_b = camera.project(P_b)
+    flow = np.nan_to_num(w_b - w_a, nan=0.0, posinf=0.0, neginf=0.0)
+    return flow.reshape(H, W, 2).astype(np.float32)
+
+
+@dataclass
+class FrameImages:
+    """One rendered frame: image (H, W, 3) uint8, ids (H, W) int32 (-1 none), range_m (H, W)."""
+
+    image: np.ndarray
+    ids: np.ndarray
+    range_m: np.ndarray
+
+
+class DriveRenderer:
+    """Everything needed to produce the frames of one simulated drive.
+
+    Holds the world frames, camera poses, CAN messages, the pyrender scenes and
+    the cube-map renderer; `produce(k)` renders frame k with sensor effects.
+    """
+
+    def __init__(self, scenario: Scenario, camera: CameraModel, mount: CameraMount,
+                 frames: list[WorldFrame], road, face_px: int | None = None) -> None:
+        self.scenario, self.camera, self.mount, self.frames = scenario, camera, mount, frames
+        n = len(frames)
+        rng_world = np.random.default_rng([scenario.seed, 0])
+        vib = Vibration.seeded(scenario.vibration.amplitude_deg,
+                               scenario.vibration.frequency_hz, rng_world)
+        self.poses = [camera_pose(T_world_car(f.ego.x_m, f.ego.y_m, f.ego.yaw_rad), mount, vib,
+                                  f.t_s) for f in frames]
+        t = np.array([f.t_s for f in frames])
+        speed = np.array([f.ego.speed_mps for f in frames])
+        c = scenario.can
+        self.t_msg, self.v_msg = can_messages(t, speed, c.rate_hz, c.speed_bias,
+                                              c.speed_noise_mps, c.quantization_mps,
+                                              np.random.default_rng([scenario.seed, 2]))
+        self.can_frame = can_at(t, self.t_msg, self.v_msg)
+        self.sensor = SensorModel(**scenario.sensor.model_dump())
+        self.gains = gain_sequence(n, self.sensor.gain_drift,
+                                   np.random.default_rng([scenario.seed, 3]))
+        self.vignette = vignetting_gain((camera.height, camera.width), self.sensor.vignetting)
+        self.road = road
+        self.face_px = face_px or default_face_px(camera)
+        self._renderer: OmniRenderer | None = None
+
+    def _open(self) -> OmniRenderer:
+        if self._renderer is None:
+            self._renderer = OmniRenderer(self.camera, self.face_px)
+            static, id_static = static_scene_for(self.frames, self.scenario, self.road,
+                                                 self.scenario.seed)
+            self._scenes = WorldScenes(static, id_static)
+            self._rays = self.camera.pixel_rays()
+            self._mask = self._renderer.lookup.map_x >= 0
+        return self._renderer
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def produce(self, k: int) -> FrameImages:
+        renderer = self._open()
+        pose = self.poses[k]
+        self._scenes.set_vehicles(self.frames[k])
+        atlas, depth = renderer.render_atlas(self._scenes.color, pose.T_world_actual, depth=True)
+        id_atlas, _ = renderer.render_atlas(self._scenes.ids, pose.T_world_actual, flat=True)
+        image = renderer.remap_color(atlas)
+        ids = decode_id_image(renderer.remap_nearest(id_atlas))
+        range_m = renderer.range_image(depth)
+        flow = None
+        if self.sensor.motion_blur and k + 1 < len(self.frames):
+            full = static_flow_px(self.camera, self._rays, range_m, pose, self.poses[k + 1])
+            flow = full * float(self.sensor.exposure_s * self.scenario.fps)
+        rng = np.random.default_rng([self.scenario.seed, 4, k])
+        out = apply_sensor(image, self.sensor, rng, gain=float(self.gains[k]),
+                           vignette=self.vignette, flow_px=flow, mask=self._mask)
+        return FrameImages(out, ids, range_m)
+
+    def groundtruth(self, k: int, ids: np.ndarray) -> dict:
+        return frame_groundtruth(k, self.frames, self.poses, ids, self.can_frame)
+
+
+def prepare_drive(scenario: Scenario, max_frames: int | None = None,
+                  face_px: int | None = None) -> DriveRenderer:
+    """Simulate the scenario's traffic and set up its renderer."""
+    camera, mount = resolve_camera(scenario.camera)
+    n = scenario.n_frames if max_frames is None else min(scenario.n_frames, max_frames)
+    frames, road = simulate(scenario.env, scenario.env_config, scenario.seed, scenario.fps,
+                            n / scenario.fps, scenario.ego_policy, return_road=True)
+    frames = frames[:n]
+    if len(frames) < n:
+        raise DriveError(f"simulation produced {len(frames)} frames, expected {n}")
+    return DriveRenderer(scenario, camera, mount, frames, road, face_px)
+
+
+def render_drive(scenario: Scenario, out_dir: Path, *, progress: bool = True,
+                 face_px: int | None = None, max_frames: int | None = None) -> DriveResult:
+    """Simulate and render ``scenario`` into ``out_dir`` (resuming if possible)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    resolved = scenario.to_dict()
+    sc_path = out_dir / "scenario.yaml"
+    if sc_path.exists():
+        import yaml
+
+        previous = yaml.safe_load(sc_path.read_text())
+        if previous != resolved:
+            raise DriveError(
+                f"{out_dir} holds a render of a different scenario ({previous.get('name')!r}); "
+                "use another --out folder or delete it"
+            )
+    drive = prepare_drive(scenario, max_frames, face_px)
+    n = len(drive.frames)
+    manifest = _read_manifest(out_dir)
+    if manifest.get("complete") and manifest.get("frames") == n:
+        return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
+    io.write_yaml(sc_path, resolved)
+    save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)
+    io.write_text(out_dir / "can.csv", "t_s,speed_mps\n" + "".join(
+        f"{a:.4f},{b:.4f}\n" for a, b in zip(drive.t_msg, drive.v_msg, strict=True)))
+    io.write_text(out_dir / "timestamps.csv", "frame,t_s\n" + "".join(
+        f"{k},{f.t_s:.6f}\n" for k, f in enumerate(drive.frames)))
+    todo = [k for k in range(n) if not (out_dir / "gt" / f"{frame_name(k)}.json").exists()]
+    render_times: list[float] = []
+    try:
+        for k in _progress(todo, progress, f"render {scenario.name}"):
+            t0 = time.perf_counter()
+            fr = drive.produce(k)
+            name = frame_name(k)
+            io.write_png(out_dir / "frames" / f"{name}.png", fr.image)
+            io.write_png(out_dir / "ids" / f"{name}.png", (fr.ids + 1).astype(np.uint16))
+            rng_cm = np.where(np.isfinite(fr.range_m), np.clip(fr.range_m * 100, 1, 65535), 0)
+            io.write_png(out_dir / "range" / f"{name}.png", rng_cm.astype(np.uint16))
+            # written last: its presence marks the frame as done
+            io.write_json(out_dir / "gt" / f"{name}.json", drive.groundtruth(k, fr.ids))
+            render_times.append(time.perf_counter() - t0)
+    finally:
+        drive.close()
+    ms = 1000 * float(np.median(render_times)) if render_times else float("nan")
+    _finalise(out_dir, n, scenario, ms)
+    return DriveResult(out_dir, n, len(todo), ms)
+
+
+def _read_manifest(out_dir: Path) -> dict:
+    p = out_dir / "manifest.json"
+    try:
+        return json.loads(p.read_text()) if p.exists() else {}
+    except json.JSONDecodeError:
+        return {}
+
+
+def frame_groundtruth(k: int, frames: list[WorldFrame], poses: list[CameraPose],
+                      ids: np.ndarray, can_frame: np.ndarray) -> dict:
+    """The ground-truth record of frame k (see module docstring of sim.drive)."""
+    f, pose = frames[k], poses[k]
+    counts = np.bincount(ids[ids >= 0].ravel(), minlength=1) if np.any(ids >= 0) else np.zeros(1)
+    rec = {
+        "frame": k,
+        "t_s": f.t_s,
+        "ego": {"x_m": f.ego.x_m, "y_m": f.ego.y_m, "yaw_rad": f.ego.yaw_rad,
+                "speed_mps": f.ego.speed_mps, "yaw_rate_rps": f.ego.yaw_rate_rps},
+        "T_world_cam_nominal": pose.T_world_nominal.round(6),
+        "T_world_cam_actual": pose.T_world_actual.round(6),
+        "A_rad": pose.A_cam_rad,
+        "can_speed_mps": float(can_frame[k]),
+        "motion_from_prev": None,
+        "vehicles": [
+            _vehicle_record(v, pose.T_world_nominal, counts[v.id] if v.id < len(counts) else 0)
+            for v in f.others
+        ],
+    }
+    if k > 0:
+        m = motion_between(poses[k - 1], pose, f.t_s - frames[k - 1].t_s)
+        rec["motion_from_prev"] = {"V_mps": m.V_mps, "W_rps": m.W_rps, "A_rad": m.A_rad,
+                                   "H": m.H, "dt_s": m.dt_s}
+    return rec
+
+
+def _finalise(out_dir: Path, n: int, scenario: Scenario, render_ms: float) -> None:
+    lines = [(out_dir / "gt" / f"{frame_name(k)}.json").read_text() for k in range(n)]
+    io.write_text(out_dir / "groundtruth.jsonl",
+                  "".join(json.dumps(json.loads(s)) + "\n" for s in lines))
+    write_video(out_dir / "drive.mp4", [out_dir / "frames" / f"{frame_name(k)}.png"
+                                        for k in range(n)], scenario.fps)
+    if not np.isfinite(render_ms):
+        render_ms = _read_manifest(out_dir).get("render_ms_per_frame")
+    # written last: a folder without a complete manifest is not a finished drive
+    io.write_json(out_dir / "manifest.json", {"complete": True, "frames": n,
+                                              "scenario": scenario.name,
+                                              "render_ms_per_frame": render_ms})
+
+
+def write_video(path: Path, frame_paths: list[Path], fps: float) -> None:
+    import imageio.v2 as imageio
+
+    def _w(p: Path) -> None:
+        with imageio.get_writer(p, fps=fps, codec="libx264", quality=7, macro_block_size=16,
+                                format="FFMPEG") as w:
+            for fp in frame_paths:
+                w.append_data(io.read_png(fp))
+
+    io.atomic_write(path, _w, suffix=".mp4")
+
+
+def _progress(items, enabled: bool, label: str):
+    if not enabled:
+        yield from items
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn()) as bar:
+        task = bar.add_task(label, total=len(items))
+        for it in items:
+            yield it
+            bar.advance(task)
+
+
+def load_groundtruth(drive_dir: Path) -> list[dict]:
+    """Read groundtruth.jsonl of a complete drive folder."""
+    drive_dir = Path(drive_dir)
+    manifest = drive_dir / "manifest.json"
+    if not manifest.exists() or not json.loads(manifest.read_text()).get("complete"):
+        raise DriveError(f"{drive_dir} is not a complete drive (no complete manifest.json)")
+    with open(drive_dir / "groundtruth.jsonl") as fh:
+        return [json.loads(line) for line in fh]

@@ -1,0 +1,67 @@
+"""CAN model, sensor effects and atomic writes."""
+
+import numpy as np
+import pytest
+
+from estimator import fileio as io
+from sim.can import can_at, can_messages
+from sim.sensor import SensorModel, apply_sensor, motion_blur, vignetting_gain
+
+
+def test_can_bias_noise_quantisation_and_rate():
+    t = np.linspace(0, 10, 151)
+    v = 20 + 0.5 * t
+    rng = np.random.default_rng(0)
+    tm, vm = can_messages(t, v, 50.0, 0.08, 0.3, 0.05, rng)
+    assert np.allclose(np.diff(tm), 0.02)
+    truth = np.interp(tm, t, v)
+    assert abs(np.mean(vm / truth) - 1.08) < 0.005
+    assert 0.25 < np.std(vm - 1.08 * truth) < 0.35
+    assert np.allclose(vm / 0.05, np.round(vm / 0.05))
+    held = can_at(np.array([0.0, 0.031, 10.0]), tm, vm)
+    assert held[1] == vm[1]  # latest message at or before 31 ms is the one at 20 ms
+
+
+def test_can_exact_when_off():
+    t = np.linspace(0, 1, 16)
+    tm, vm = can_messages(t, np.full(16, 12.3), 10.0, 0.0, 0.0, 0.0, np.random.default_rng(1))
+    assert np.allclose(vm, 12.3)
+
+
+def test_sensor_exact_is_identity():
+    img = np.random.default_rng(0).integers(0, 256, (32, 40, 3), dtype=np.uint8)
+    out = apply_sensor(img, SensorModel(), np.random.default_rng(0))
+    assert np.array_equal(out, img)
+
+
+def test_sensor_noise_and_jpeg_change_image_by_expected_amount():
+    img = np.full((64, 64, 3), 128, np.uint8)
+    out = apply_sensor(img, SensorModel(noise_std=3.0), np.random.default_rng(0))
+    assert 2.5 < np.std(out.astype(float)) < 3.5
+    out = apply_sensor(img, SensorModel(jpeg_quality=50), np.random.default_rng(0))
+    assert out.shape == img.shape
+
+
+def test_vignetting_and_blur():
+    g = vignetting_gain((11, 11), 0.3)
+    assert g[5, 5] == pytest.approx(1.0) and g[0, 0] == pytest.approx(0.7)
+    img = np.zeros((20, 20, 3), np.float32)
+    img[:, 10] = 255
+    flow = np.zeros((20, 20, 2), np.float32)
+    flow[..., 0] = 4.0  # 4 px horizontal motion spreads the vertical line
+    out = motion_blur(img, flow)
+    assert out[5, 10, 0] < 255 and out[5, 8, 0] > 0 and out[5, 5, 0] == 0
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "a.json"
+
+    def broken(p):
+        p.write_text("half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        io.atomic_write(target, broken)
+    assert list(tmp_path.iterdir()) == []
+    io.write_json(target, {"x": np.float32(1.5)})
+    assert target.read_text().strip().startswith("{")
