@@ -421,9 +421,7 @@ class HyperbolicCamera(CameraModel):
         b = a * float(np.sqrt(t * t - 1.0))
         c = a * t
         scale = (c * c + a * a) / (c * c - a * a)  # q2 / q1
-        return cls(
-            a, b, gamma_u * scale, gamma_v * scale, u0, v0, skew_gamma * scale, **kwargs
-        )
+        return cls(a, b, gamma_u * scale, gamma_v * scale, u0, v0, skew_gamma * scale, **kwargs)
 
     # -- model ----------------------------------------------------------------
     def project(self, P: np.ndarray) -> np.ndarray:
@@ -459,7 +457,9 @@ class HyperbolicCamera(CameraModel):
         y = (w[:, 1] - self.v0) / self.fv  # eq. 9: p = K^-1 w
         x = (w[:, 0] - self.u0 - self.skew * y) / self.fu
         # eq. 10: P = (q1 x, q1 y, q2 - q3 sqrt(x^2 + y^2 + 1))
-        P = np.stack([self.q1 * x, self.q1 * y, self.q2 - self.q3 * np.sqrt(x * x + y * y + 1.0)], 1)
+        P = np.stack(
+            [self.q1 * x, self.q1 * y, self.q2 - self.q3 * np.sqrt(x * x + y * y + 1.0)], 1
+        )
         return P / np.linalg.norm(P, axis=1, keepdims=True)
 
     def project_jacobian(self, P: np.ndarray) -> np.ndarray:

@@ -190,9 +190,7 @@ def preset_names() -> list[str]:
 
 
 # ------------------------------------------------------------- dict <-> objects
-def camera_from_dict(
-    data: Any, where: str = "camera spec"
-) -> tuple[CameraModel, CameraMount]:
+def camera_from_dict(data: Any, where: str = "camera spec") -> tuple[CameraModel, CameraMount]:
     """Validate a camera-file mapping and build ``(camera, mount)``.
 
     ``where`` names the source (file or spec) in error messages.
