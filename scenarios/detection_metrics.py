@@ -1,0 +1,366 @@
+"""Ground-truth metrics of vehicle detection, tracking and localisation (paper section 5).
+
+Per frame the caller gives the ground-truth vehicles of the evaluation set (what
+the detector could and should see, already filtered) as road-plane footprints in
+the ego road frame (x forward, y left, origin on the road under the camera
+viewpoint, docs/CONVENTIONS.md), and the hypotheses (id, x, y): track or
+detection points in the same frame.
+
+Matching ("nearest-point convention"). The detector reports a vehicle's ground
+point nearest to the camera, which lies on the edge of its footprint. A
+hypothesis matches a vehicle when its distance to the footprint polygon (0 inside)
+is at most ``gate_m`` (`MetricsConfig`). Pairs beyond the gate never match.
+
+- detection: per frame, optimal assignment (`scipy.optimize.linear_sum_assignment`,
+  most pairs first, then least total distance) of hypotheses to vehicles under
+  the gate. recall = matched / gt_count, precision = matched / hypothesis count.
+- tracking: motmetrics (MOTA, IDF1, id switches) from a ``MOTAccumulator`` fed
+  with the footprint distances, NaN beyond the gate. The matrix is built here
+  with numpy: ``motmetrics.distances.norm2squared_matrix`` calls ``np.asfarray``,
+  removed in NumPy 2 (shared/NOTES.md).
+- HOTA: ``trackeval.metrics.HOTA().eval_sequence`` on a data dict built here,
+  similarity ``max(0, 1 - d / gate_m)`` (1 on or inside the footprint, 0 at the
+  gate); reported as the mean of HOTA over its alpha thresholds 0.05 ... 0.95.
+  A pair with similarity below alpha does not match at that alpha, so a
+  hypothesis d from the footprint counts at the alphas <= 1 - d / gate_m.
+- localisation: for each detection-matched pair, the distance from the
+  hypothesis to the vehicle's footprint point nearest to the camera (the point
+  the detector is supposed to report), not to the footprint (which is 0 inside).
+
+Frames with no vehicle and no hypothesis are fine; a metric that has no
+denominator (no vehicle at all, no hypothesis, no match) is NaN and its reason is
+listed in ``nan_reasons``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import motmetrics as mm
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from trackeval.metrics import HOTA
+
+NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """Settings of `evaluate` (units beside each value)."""
+
+    gate_m: float = 1.5  # [m] max distance from a hypothesis to a footprint to match
+    camera_xy: tuple[float, float] = (0.0, 0.0)  # [m] camera foot in the ego road frame
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.gate_m) and self.gate_m > 0):
+            raise ValueError(f"MetricsConfig.gate_m must be finite and > 0, got {self.gate_m!r}")
+        if len(self.camera_xy) != 2 or not all(math.isfinite(v) for v in self.camera_xy):
+            raise ValueError(
+                f"MetricsConfig.camera_xy must be 2 finite numbers, got {self.camera_xy}"
+            )
+
+
+# ------------------------------------------------------------------ inputs
+@dataclass(frozen=True)
+class GtVehicle:
+    """A ground-truth vehicle: id and footprint (4, 2) [m] in the ego road frame.
+
+    The corners go around a convex polygon (either direction).
+    """
+
+    id: int
+    footprint_xy: np.ndarray
+
+    def __post_init__(self) -> None:
+        fp = np.asarray(self.footprint_xy, dtype=float)
+        if fp.shape != (4, 2) or not np.all(np.isfinite(fp)):
+            raise ValueError(f"GtVehicle {self.id}: footprint_xy must be finite (4, 2), got {fp}")
+        object.__setattr__(self, "footprint_xy", fp)
+
+    @classmethod
+    def from_box(
+        cls,
+        vehicle_id: int,
+        x_m: float,
+        y_m: float,
+        length_m: float,
+        width_m: float,
+        yaw_rad: float,
+    ) -> GtVehicle:
+        """Footprint of a box: centre (x, y) [m], length along its heading, yaw to ego x [rad]."""
+        c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+        half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length_m / 2, width_m / 2]
+        R = np.array([[c, -s], [s, c]])
+        return cls(int(vehicle_id), half @ R.T + [x_m, y_m])
+
+
+@dataclass
+class EvalFrame:
+    """One frame: ground truth (evaluation set) and hypotheses (id, x [m], y [m])."""
+
+    gt: Sequence[GtVehicle]
+    hypotheses: Sequence[tuple[int, float, float]] = ()
+    t_s: float = NAN
+    hyp_ids: np.ndarray = field(init=False, repr=False)
+    hyp_xy: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.gt = list(self.gt)
+        h = list(self.hypotheses)
+        self.hyp_ids = np.array([int(r[0]) for r in h], dtype=int)
+        self.hyp_xy = np.array([[float(r[1]), float(r[2])] for r in h]).reshape(-1, 2)
+        if not np.all(np.isfinite(self.hyp_xy)):
+            raise ValueError(f"frame t={self.t_s}: hypothesis positions must be finite: {h}")
+        gt_ids = [g.id for g in self.gt]
+        for name, ids in (("ground-truth", gt_ids), ("hypothesis", self.hyp_ids.tolist())):
+            if len(set(ids)) != len(ids):
+                raise ValueError(f"frame t={self.t_s}: duplicate {name} ids {sorted(ids)}")
+
+    @property
+    def gt_ids(self) -> np.ndarray:
+        return np.array([g.id for g in self.gt], dtype=int)
+
+
+def hypotheses_from_tracks(tracks: Iterable[Any]) -> list[tuple[int, float, float]]:
+    """(id, x, y) of tracks with ``.id`` and ``.x`` (e.g. `estimator.tracking.Track`)."""
+    return [(int(t.id), float(t.x[0]), float(t.x[1])) for t in tracks]
+
+
+# ------------------------------------------------------------------ geometry
+def _closest_on_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(P, E, 2) closest point of each segment a[e]-b[e] (E, 2) to each point (P, 2)."""
+    ab = b - a
+    denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    t = np.einsum("pej,ej->pe", points[:, None, :] - a[None], ab) / denom
+    t = np.clip(t, 0.0, 1.0)
+    return a[None] + t[..., None] * ab[None]
+
+
+def point_footprint_distance(points_xy: np.ndarray, footprint_xy: np.ndarray) -> np.ndarray:
+    """(P,) distance [m] from points (P, 2) to a convex polygon (V, 2); 0 inside or on it."""
+    pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+    poly = np.asarray(footprint_xy, dtype=float)
+    a, b = poly, np.roll(poly, -1, axis=0)
+    closest = _closest_on_segments(pts, a, b)
+    dist = np.linalg.norm(pts[:, None, :] - closest, axis=2).min(axis=1)
+    # inside: the point is on the same side of every edge (either orientation)
+    ab = b - a
+    ap = pts[:, None, :] - a[None]
+    cross = ab[None, :, 0] * ap[..., 1] - ab[None, :, 1] * ap[..., 0]
+    inside = np.all(cross >= 0, axis=1) | np.all(cross <= 0, axis=1)
+    return np.where(inside, 0.0, dist)
+
+
+def nearest_footprint_point(
+    footprint_xy: np.ndarray, camera_xy: Sequence[float] = (0.0, 0.0)
+) -> np.ndarray:
+    """(2,) point of the footprint boundary nearest to the camera foot [m]."""
+    poly = np.asarray(footprint_xy, dtype=float)
+    cam = np.asarray(camera_xy, dtype=float).reshape(1, 2)
+    closest = _closest_on_segments(cam, poly, np.roll(poly, -1, axis=0))[0]
+    return closest[np.argmin(np.linalg.norm(closest - cam, axis=1))]
+
+
+def distance_matrix(frame: EvalFrame) -> np.ndarray:
+    """(G, H) footprint distances [m] of a frame's vehicles (rows) and hypotheses (cols)."""
+    D = np.zeros((len(frame.gt), len(frame.hyp_xy)))
+    for i, g in enumerate(frame.gt):
+        D[i] = point_footprint_distance(frame.hyp_xy, g.footprint_xy)
+    return D
+
+
+def _gated_assignment(D: np.ndarray, gate: float) -> list[tuple[int, int]]:
+    """Most pairs with D <= gate, then least total distance; (gt row, hyp col) pairs."""
+    allowed = D <= gate
+    if not allowed.any():
+        return []
+    big = 1.0 + min(D.shape) * (gate + 1.0)  # exceeds any sum of allowed distances
+    rows, cols = linear_sum_assignment(np.where(allowed, D, big))
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if allowed[r, c]]
+
+
+# ------------------------------------------------------------------ metrics
+def _hota(frames: Sequence[EvalFrame], dists: Sequence[np.ndarray], gate: float) -> float:
+    """Mean over alpha of TrackEval's HOTA, similarity max(0, 1 - d / gate)."""
+    # TrackEval wants ids 0..n-1 with every id present somewhere: an id that never
+    # appears gives 0/0 in its global alignment score and a NaN cost matrix
+    gt_index = {g: k for k, g in enumerate(sorted({g.id for f in frames for g in f.gt}))}
+    hyp_index = {h: k for k, h in enumerate(sorted({int(h) for f in frames for h in f.hyp_ids}))}
+    data = {
+        "num_timesteps": len(frames),
+        "num_gt_ids": len(gt_index),
+        "num_tracker_ids": len(hyp_index),
+        "num_gt_dets": sum(len(f.gt) for f in frames),
+        "num_tracker_dets": sum(len(f.hyp_ids) for f in frames),
+        "gt_ids": [np.array([gt_index[g.id] for g in f.gt], dtype=int) for f in frames],
+        "tracker_ids": [
+            np.array([hyp_index[int(h)] for h in f.hyp_ids], dtype=int) for f in frames
+        ],
+        "similarity_scores": [np.clip(1.0 - D / gate, 0.0, 1.0) for D in dists],
+    }
+    res = HOTA().eval_sequence(data)
+    return float(np.mean(res["HOTA"]))
+
+
+def _motmetrics(frames: Sequence[EvalFrame], dists: Sequence[np.ndarray], gate: float) -> dict:
+    acc = mm.MOTAccumulator(auto_id=False)
+    for k, (f, D) in enumerate(zip(frames, dists, strict=True)):
+        acc.update(f.gt_ids.tolist(), f.hyp_ids.tolist(), np.where(D <= gate, D, np.nan), frameid=k)
+    names = ["mota", "idf1", "num_switches", "num_matches", "num_false_positives", "num_misses"]
+    summary = mm.metrics.create().compute(acc, metrics=names, name="seq")
+    return {n: summary[n].iloc[0] for n in names}
+
+
+def _match_all(frames: Sequence[EvalFrame], cfg: MetricsConfig):
+    """Per-frame distance matrices and detection matches (frame, gt row, hyp col)."""
+    dists = [distance_matrix(f) for f in frames]
+    matches = [(k, r, c) for k, D in enumerate(dists) for r, c in _gated_assignment(D, cfg.gate_m)]
+    return dists, matches
+
+
+def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
+    """Detection, tracking and localisation metrics of a sequence.
+
+    Returns ``{"gate_m", "counts", "detection": {"recall", "precision", "gt_count",
+    "matched"}, "tracking": {"mota", "idf1", "hota", "id_switches"},
+    "localization": {"median_error_m", "p90_error_m"}, "nan_reasons"}`` with
+    plain Python numbers (JSON-ready). ``nan_reasons`` maps "section.metric" to
+    why that metric is NaN.
+    """
+    cfg = config if config is not None else MetricsConfig()
+    frames = list(frames)
+    dists, matches = _match_all(frames, cfg)
+    gt_count = sum(len(f.gt) for f in frames)
+    hyp_count = sum(len(f.hyp_ids) for f in frames)
+    matched = len(matches)
+    reasons: dict[str, str] = {}
+
+    def ratio(num: float, den: int, key: str, why: str) -> float:
+        if den == 0:
+            reasons[key] = why
+            return NAN
+        return float(num / den)
+
+    recall = ratio(matched, gt_count, "detection.recall", "no ground-truth vehicle")
+    precision = ratio(matched, hyp_count, "detection.precision", "no hypothesis")
+
+    errors = np.array(
+        [
+            float(
+                np.linalg.norm(
+                    frames[k].hyp_xy[c]
+                    - nearest_footprint_point(frames[k].gt[r].footprint_xy, cfg.camera_xy)
+                )
+            )
+            for k, r, c in matches
+        ]
+    )
+    if errors.size:
+        median_err, p90_err = float(np.median(errors)), float(np.percentile(errors, 90))
+    else:
+        median_err = p90_err = NAN
+        reasons["localization.median_error_m"] = reasons["localization.p90_error_m"] = (
+            "no matched hypothesis"
+        )
+
+    mot = {"mota": NAN, "idf1": NAN, "num_switches": 0, "num_matches": 0}
+    mot |= {"num_false_positives": hyp_count, "num_misses": 0}
+    hota = NAN
+    if gt_count == 0:
+        for key in ("tracking.mota", "tracking.idf1", "tracking.hota"):
+            reasons[key] = "no ground-truth vehicle"
+    elif frames:
+        mot = _motmetrics(frames, dists, cfg.gate_m)
+        hota = _hota(frames, dists, cfg.gate_m)
+
+    return {
+        "gate_m": float(cfg.gate_m),
+        "counts": {
+            "frames": len(frames),
+            "empty_frames": sum(1 for f in frames if not f.gt and not len(f.hyp_ids)),
+            "gt_count": gt_count,
+            "hyp_count": hyp_count,
+            "gt_ids": len({g.id for f in frames for g in f.gt}),
+            "hyp_ids": len({int(h) for f in frames for h in f.hyp_ids}),
+            "false_positives": hyp_count - matched,
+            "misses": gt_count - matched,
+            "mot_matches": int(mot["num_matches"]),
+            "mot_false_positives": int(mot["num_false_positives"]),
+            "mot_misses": int(mot["num_misses"]),
+            "localization_pairs": int(errors.size),
+        },
+        "detection": {
+            "recall": recall,
+            "precision": precision,
+            "gt_count": gt_count,
+            "matched": matched,
+        },
+        "tracking": {
+            "mota": float(mot["mota"]),
+            "idf1": float(mot["idf1"]),
+            "hota": hota,
+            "id_switches": int(mot["num_switches"]),
+        },
+        "localization": {"median_error_m": median_err, "p90_error_m": p90_err},
+        "nan_reasons": reasons,
+    }
+
+
+# ------------------------------------------------------------------ recall by bins
+def _recall_by(
+    frames: Sequence[EvalFrame],
+    bin_edges: Sequence[float],
+    config: MetricsConfig | None,
+    key,
+) -> dict:
+    cfg = config if config is not None else MetricsConfig()
+    frames = list(frames)
+    edges = np.asarray(bin_edges, dtype=float)
+    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):
+        raise ValueError(f"bin edges must be 1-D, increasing, >= 2 values, got {edges}")
+    _, matches = _match_all(frames, cfg)
+    hit = {(k, r) for k, r, _ in matches}
+    values, found = [], []
+    for k, f in enumerate(frames):
+        for r, g in enumerate(f.gt):
+            p = nearest_footprint_point(g.footprint_xy, cfg.camera_xy) - cfg.camera_xy
+            values.append(key(p))
+            found.append((k, r) in hit)
+    values_a, found_a = np.asarray(values, dtype=float), np.asarray(found, dtype=bool)
+    gt_n = np.histogram(values_a, edges)[0] if values_a.size else np.zeros(edges.size - 1, int)
+    hit_n = np.histogram(values_a[found_a], edges)[0] if found_a.any() else np.zeros_like(gt_n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rec = np.where(gt_n > 0, hit_n / np.maximum(gt_n, 1), np.nan)
+    return {
+        "bin_edges": edges.tolist(),
+        "gt_count": gt_n.astype(int).tolist(),
+        "matched": hit_n.astype(int).tolist(),
+        "recall": [float(v) for v in rec],  # NaN: no vehicle in the bin
+    }
+
+
+def recall_by_range(
+    frames: Sequence[EvalFrame], bin_edges_m: Sequence[float], config: MetricsConfig | None = None
+) -> dict:
+    """Detection recall binned by range [m] of each vehicle's footprint point nearest the camera.
+
+    Returns {"bin_edges", "gt_count", "matched", "recall"} (lists, one entry per
+    bin; recall NaN for an empty bin). Vehicles outside the edges are not counted.
+    """
+    return _recall_by(frames, bin_edges_m, config, lambda p: float(np.hypot(*p)))
+
+
+def recall_by_bearing(
+    frames: Sequence[EvalFrame],
+    bin_edges_deg: Sequence[float],
+    config: MetricsConfig | None = None,
+) -> dict:
+    """Detection recall binned by bearing [deg] of each vehicle's nearest footprint point.
+
+    Bearing = atan2(y, x) around the camera foot in (-180, 180]: 0 ahead, +90
+    left, -90 right, ±180 behind. Same return layout as `recall_by_range`.
+    """
+    return _recall_by(frames, bin_edges_deg, config, lambda p: math.degrees(math.atan2(p[1], p[0])))
