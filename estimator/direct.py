@@ -1,0 +1,769 @@
+"""Direct ego-motion estimation from image gradients (paper section 4.2).
+
+For each new frame B (previous frame A)::
+
+    Gaussian pyramids of A and B; x̂ = x⁻, P = P⁻ (time update eq. 19 + CAN speed)
+    for each level, coarsest to finest, several iterations of:
+        1. warp B at the selected points of A with x̂ (motion model, one cv2.remap)
+        2. spatial gradients of B there, temporal gradient g_t = B(w_b) - A(w_a)
+        3. constraint rows C = g^T dw_b/dx, innovation Δz = -g_t (eq. 13-16)
+        4. reclassify points by data snooping (eq. 20-21), R scaled by the robust
+           residual level s² (median of Δz²/R, ``adaptive_noise``)
+        5. IEKF update with the inliers (eq. 17-18)
+
+Points: pixels of A in the road region of interest (valid camera ray, hitting
+the road below the horizon within ``max_range_m`` of the car, not through the
+ego car's body) whose gradient magnitude passes a threshold, thinned by
+non-maximal suppression and capped at ``max_points`` (strongest first).
+Everything that depends only on the camera (ROI masks and rays of candidate
+pixels per level, whole-image rays for motion compensation) is computed once.
+
+Pyramid levels are addressed in full-resolution pixels: ``cv2.pyrDown`` puts
+level-l pixel (i, j) at full-resolution pixel (2^l i, 2^l j), so a point's ray
+is ``camera.unproject`` of its full-resolution position and level gradients
+are divided by 2^l. No downscaled camera is needed.
+
+`EgoMotionEstimator` (base of all estimators, also `estimator.baselines`) does
+the input checks, the time update and the CAN prior, and builds the record.
+
+Degraded inputs never raise (except a frame of the wrong size, or time not
+increasing: caller errors) and never give a silent number: ``degraded=True``
+with a reason and flags. A dark or saturated frame, a textureless road, too few
+inliers or a poor fit (s² > ``max_noise_scale``: the road did not align) give
+the prior (time update + CAN); a missing CAN speed (time-updated speed, V
+covariance inflated) or a time gap (Q grows with dt) are flagged and the
+images still measure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from estimator.camera import CameraModel
+from estimator.homography import A_SLICE, N_STATE, V_SLICE, W_SLICE, dh_dx, homography
+from estimator.iekf import FilterConfig, IteratedEKF, data_snooping, robust_weights
+from estimator.motion_model import constraint_rows, map_rays
+from estimator.mount import CameraMount
+
+UNUSED, INLIER, OUTLIER = 0, 1, 2  # point labels (paper Fig. 4b: black, gray, white)
+
+
+# ------------------------------------------------------------------ config
+@dataclass(frozen=True)
+class DirectConfig:
+    """Settings of `DirectEstimator` (units beside each value)."""
+
+    levels: int = 4  # [-] pyramid levels (0 = full resolution)
+    iterations: tuple[int, ...] = (5, 4, 3, 2)  # [-] max IEKF iterations per level, coarse->fine
+    max_points: int = 1500  # [-] points per level (strongest gradients after NMS)
+    grad_threshold: float = 4.0  # [DN/px] gradient magnitude of a candidate point (level px)
+    nms: bool = True  # [-] keep only 3x3 local maxima of the gradient magnitude
+    presmooth_sigma_px: float = 0.7  # [px] Gaussian blur of the full-resolution frame
+    sigma_intensity: float = 2.0  # [DN] measurement noise of one brightness sample
+    sigma_flow_px: float = 0.2  # [px] model/interpolation noise, as a flow error (level px)
+    outliers: str = "snooping"  # "snooping" (eq. 20-21), "huber", "tukey" or "none"
+    snoop_threshold: float = 9.0  # [-] Mahalanobis² above which a point is an outlier
+    robust_k: float = 2.5  # [sigma] Huber / Tukey tuning constant
+    adaptive_noise: bool = True  # [-] scale R by the robust (median) residual level
+    max_noise_scale: float = 10.0  # [-] finest-level s² above which the fit is "poor"
+    step_tol: float = 0.05  # [-] stop a level when the step's Mahalanobis norm is below
+    gain_compensation: bool = True  # [-] fit a global brightness gain B -> A each iteration
+    max_range_m: float = 30.0  # [m] farthest road point used (horizontal, from the camera)
+    ego_box_m: tuple[float, float, float] | None = (5.0, 2.0, 1.0)  # [m] body below the
+    # beltline (length, width, height), centred on the car origin: rays through it are masked
+    ego_margin_m: float = 0.1  # [m] margin around ego_box_m
+    roi_erode_px: int = 3  # [px at each level] distance kept from image edges (body, horizon)
+    min_points: int = 40  # [-] fewer selected points (or inliers) at a level: level skipped
+    min_inlier_fraction: float = 0.25  # [-] fewer inliers at the finest level: degraded
+    dark_level: float = 12.0  # [DN] mean brightness below which a frame is "dark"
+    saturated_level: float = 250.0  # [DN] brightness counted as saturated
+    saturated_fraction: float = 0.5  # [-] saturated share of the ROI that flags a frame
+    can_missing_inflation: float = 4.0  # [-] variance factor on V when the CAN speed is lost
+    compensate: bool = False  # [-] return the motion-compensated previous frame
+    filter: FilterConfig = field(default_factory=FilterConfig)
+
+    def __post_init__(self) -> None:
+        if self.levels < 1:
+            raise ValueError(f"direct.levels must be >= 1, got {self.levels}")
+        if len(self.iterations) != self.levels:
+            raise ValueError(
+                f"direct.iterations needs one count per level ({self.levels}), "
+                f"got {self.iterations!r}"
+            )
+        if self.outliers not in ("snooping", "huber", "tukey", "none"):
+            raise ValueError(
+                f"direct.outliers must be 'snooping', 'huber', 'tukey' or 'none', "
+                f"got {self.outliers!r}"
+            )
+
+
+# Settings that differ by camera kind. A pinhole sees a narrow wedge of road, where
+# a yaw rotation and a pitch offset of the camera move the image almost alike:
+# it needs every textured pixel (no NMS, low threshold) and the far road.
+KIND_DEFAULTS: dict[str, dict[str, Any]] = {
+    "omni": {},
+    "pinhole": {"max_range_m": 60.0, "nms": False, "max_points": 6000, "grad_threshold": 2.0},
+}
+
+
+def default_config(kind: str, **overrides: Any) -> DirectConfig:
+    """`DirectConfig` for a camera kind (``KIND_DEFAULTS``) with ``overrides`` applied."""
+    if kind not in KIND_DEFAULTS:
+        raise ValueError(f"unknown camera kind {kind!r}; known: {', '.join(KIND_DEFAULTS)}")
+    return make_config(DirectConfig, {**KIND_DEFAULTS[kind], **overrides}, "direct")
+
+
+def make_config(cls: type, overrides: dict[str, Any], where: str) -> Any:
+    """Dataclass ``cls`` with ``overrides`` applied; nested dataclasses take dicts.
+
+    An unknown key raises ValueError with its dotted path (``direct.filter.bad``).
+    """
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    kw: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if key not in names:
+            raise ValueError(f"unknown setting {where}.{key}; known: {', '.join(sorted(names))}")
+        default = names[key].default
+        if default is dataclasses.MISSING and names[key].default_factory is not dataclasses.MISSING:
+            default = names[key].default_factory()
+        if dataclasses.is_dataclass(default) and isinstance(value, dict):
+            value = make_config(type(default), value, f"{where}.{key}")
+        elif isinstance(default, tuple) and isinstance(value, list):
+            value = tuple(value)
+        kw[key] = value
+    return cls(**kw)
+
+
+# ------------------------------------------------------------------ record
+@dataclass
+class EgoMotionRecord:
+    """Estimate of one frame (the motion from the previous frame to this one).
+
+    x (9,), P (9, 9): posterior (V [m/s], W [rad/s], A [rad], nominal camera frame).
+    x_prior (9,), P_prior (9, 9): the prior x⁻, P⁻ (time update + CAN speed).
+    speed_mps: forward speed of the viewpoint in the car frame, ``(R_car_cam V)[0]``.
+    yaw_rate_rps: ``(R_car_cam W)[2]`` (left turn positive).
+    points_px (N, 2), point_labels (N,): points of the finest level used, in the
+    previous frame, with UNUSED / INLIER / OUTLIER.
+    iterations: IEKF iterations per level (coarse to fine).
+    noise_scale: median of (residual² / R) / 0.455 at the finest level (~1 when the
+    residuals match the noise model; large when the road did not align).
+    degraded: True when the output is (or leans on) the prior; reason says why;
+    flags: short machine-readable names of every condition met.
+    compensated: (H, W) float32 previous frame warped onto this one, on request.
+    """
+
+    frame: int
+    t_s: float
+    dt_s: float
+    x: np.ndarray
+    P: np.ndarray
+    x_prior: np.ndarray
+    P_prior: np.ndarray
+    speed_mps: float
+    yaw_rate_rps: float
+    can_speed_mps: float = math.nan
+    noise_scale: float = math.nan
+    n_points: int = 0
+    n_inliers: int = 0
+    iterations: tuple[int, ...] = ()
+    points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    point_labels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    flags: tuple[str, ...] = ()
+    degraded: bool = False
+    reason: str = ""
+    compensated: np.ndarray | None = None
+
+    @property
+    def V(self) -> np.ndarray:
+        """(3,) viewpoint velocity in the nominal camera frame [m/s]."""
+        return self.x[V_SLICE]
+
+    @property
+    def W(self) -> np.ndarray:
+        """(3,) angular velocity in the nominal camera frame [rad/s]."""
+        return self.x[W_SLICE]
+
+    @property
+    def A(self) -> np.ndarray:
+        """(3,) angular displacement of the actual camera [rad]."""
+        return self.x[A_SLICE]
+
+
+def make_record(
+    frame: int, t_s: float, dt_s: float, ekf: IteratedEKF, R_car_cam: np.ndarray, **kw: Any
+) -> EgoMotionRecord:
+    """Record of the filter's current posterior and prior (shared by all estimators)."""
+    x = ekf.x.copy()
+    reasons = kw.pop("reasons", [])
+    return EgoMotionRecord(
+        frame=frame,
+        t_s=float(t_s),
+        dt_s=float(dt_s),
+        x=x,
+        P=ekf.P.copy(),
+        x_prior=ekf.x_prior.copy(),
+        P_prior=ekf.P_prior.copy(),
+        speed_mps=float((R_car_cam @ x[V_SLICE])[0]),
+        yaw_rate_rps=float((R_car_cam @ x[W_SLICE])[2]),
+        degraded=bool(reasons),
+        reason="; ".join(reasons),
+        **kw,
+    )
+
+
+# ------------------------------------------------------------------ inputs
+def to_gray(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32 brightness [DN] of a gray or RGB frame; ValueError on a bad frame."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ValueError(f"frame must be (H, W) gray or (H, W, 3) RGB, got shape {img.shape}")
+    if img.shape[:2] != shape:
+        raise ValueError(
+            f"frame size {img.shape[1]}x{img.shape[0]} (WxH) does not match the camera: "
+            f"expected {shape[1]}x{shape[0]}"
+        )
+    if img.dtype == bool or not np.issubdtype(img.dtype, np.number):
+        raise ValueError(f"frame must be numeric, got dtype {img.dtype}")
+    if img.ndim == 3:
+        img = cv2.cvtColor(
+            img if img.dtype == np.uint8 else img.astype(np.float32), cv2.COLOR_RGB2GRAY
+        )
+    img = img.astype(np.float32, copy=False)
+    if not np.issubdtype(np.asarray(image).dtype, np.integer):
+        img = np.nan_to_num(img, nan=0.0, posinf=255.0, neginf=0.0)
+    return img
+
+
+def valid_can(v: Any) -> float:
+    """The CAN speed as a float, NaN when missing (None, NaN, inf, negative)."""
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return math.nan
+    return f if math.isfinite(f) and f >= 0.0 else math.nan
+
+
+# ---------------------------------------------------------- region of interest
+def ego_body_hit(
+    rays_car: np.ndarray, origin_car: np.ndarray, box_m: tuple[float, float, float], margin_m: float
+) -> np.ndarray:
+    """(N,) bool: rays (N, 3) from origin (3,) (car frame) that enter the ego body box.
+
+    The box is ``|x| <= L/2 + margin``, ``|y| <= W/2 + margin``, ``0 <= z <= H + margin``.
+    A ray from a viewpoint inside the box is never counted as blocked (slab test).
+    """
+    L, Wd, Ht = box_m
+    lo = np.array([-L / 2 - margin_m, -Wd / 2 - margin_m, 0.0])
+    hi = np.array([L / 2 + margin_m, Wd / 2 + margin_m, Ht + margin_m])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / rays_car
+        t1 = (lo - origin_car) * inv
+        t2 = (hi - origin_car) * inv
+    t1 = np.nan_to_num(t1, nan=-np.inf)
+    t2 = np.nan_to_num(t2, nan=np.inf)
+    t_near = np.max(np.minimum(t1, t2), axis=1)
+    t_far = np.min(np.maximum(t1, t2), axis=1)
+    return (t_near <= t_far) & (t_near > 0.0)
+
+
+def road_roi(
+    mount: CameraMount,
+    rays: np.ndarray,
+    max_range_m: float,
+    ego_box_m: tuple[float, float, float] | None,
+    ego_margin_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Road masks of rays (N, 3) of the nominal camera: (seen (N,) bool, in_range (N,) bool).
+
+    seen: below the horizon (``K0^T r > 0``) and not through the ego body;
+    in_range: the road hit is within ``max_range_m`` (horizontal distance from
+    the viewpoint). Only ``seen`` has image edges at its border (body, horizon).
+    """
+    K0 = mount.K0
+    kr = rays @ K0
+    seen = np.isfinite(kr) & (kr > 1e-6)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = 1.0 / kr  # range along the unit ray to the road [m]
+        n = K0 / np.linalg.norm(K0)
+        horiz = t * np.sqrt(np.maximum(1.0 - (rays @ n) ** 2, 0.0))
+    in_range = seen & (horiz <= max_range_m)
+    if ego_box_m is not None:
+        rays_car = rays @ mount.R_car_cam.T
+        seen &= ~ego_body_hit(
+            rays_car, np.asarray(mount.position_m, float), ego_box_m, ego_margin_m
+        )
+    return seen, in_range
+
+
+@dataclass
+class _Level:
+    """What depends only on the camera at one pyramid level.
+
+    scale: 2^l; shape: (H_l, W_l); roi_idx: (M,) flat indices of candidate pixels;
+    roi_w: (M, 2) their full-resolution pixels; roi_rays: (M, 3) their rays;
+    valid_b: (H_l, W_l) uint8 mask of pixels where B may be sampled.
+    """
+
+    scale: int
+    shape: tuple[int, int]
+    roi_idx: np.ndarray
+    roi_w: np.ndarray
+    roi_rays: np.ndarray
+    valid_b: np.ndarray
+
+
+def _level_shapes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
+    shapes = [(height, width)]
+    for _ in range(1, levels):
+        h, w = shapes[-1]
+        shapes.append(((h + 1) // 2, (w + 1) // 2))
+    return shapes
+
+
+def build_levels(camera: CameraModel, mount: CameraMount, cfg: DirectConfig) -> list[_Level]:
+    """Per-level ROI, rays of candidate pixels and sampling masks (once per camera).
+
+    The image-edge masks (valid rays, road side of the horizon, outside the ego
+    body) are eroded by ``roi_erode_px`` (plus 2 sigma of the pre-smoothing at
+    level 0): no point or sample then reads pixels across those edges.
+    """
+    valid_full = camera.valid_mask()
+    out = []
+    kernel = np.ones((3, 3), np.uint8)
+    for lvl, (h, w) in enumerate(_level_shapes(camera.height, camera.width, cfg.levels)):
+        s = 2**lvl
+        v, u = np.mgrid[0:h, 0:w]
+        uf, vf = (u * s).ravel(), (v * s).ravel()
+        inside = (uf < camera.width) & (vf < camera.height)
+        valid = np.zeros(h * w, bool)
+        valid[inside] = valid_full[vf[inside], uf[inside]]
+        w_full = np.stack([uf, vf], 1).astype(np.float64)
+        cand = np.flatnonzero(valid)
+        rays = camera.unproject(w_full[cand])
+        seen, in_range = road_roi(mount, rays, cfg.max_range_m, cfg.ego_box_m, cfg.ego_margin_m)
+        erode = cfg.roi_erode_px + (math.ceil(2 * cfg.presmooth_sigma_px) if lvl == 0 else 0)
+        clean = np.zeros(h * w, np.uint8)
+        clean[cand[seen]] = 1
+        clean = cv2.erode(clean.reshape(h, w), kernel, iterations=erode)
+        keep = in_range & (clean.ravel()[cand] > 0)
+        out.append(_Level(s, (h, w), cand[keep], w_full[cand[keep]], rays[keep], clean))
+    return out
+
+
+# ------------------------------------------------------------------ frames
+@dataclass
+class _Frame:
+    """A frame's pyramid: per level (H_l, W_l) float32 images [I, dI/du, dI/dv] (level px),
+    gradient magnitude and its 3x3 local maxima; reason: why the frame is unusable ("" if ok)."""
+
+    t_s: float
+    stacks: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+    mags: list[np.ndarray]
+    local_max: list[np.ndarray | None]
+    gray: np.ndarray
+    reason: str
+
+
+def build_frame(gray: np.ndarray, t_s: float, cfg: DirectConfig, reason: str) -> _Frame:
+    """Pyramid, gradients and NMS maxima of a frame (computed once, used as B then A)."""
+    img = gray
+    if cfg.presmooth_sigma_px > 0:
+        img = cv2.GaussianBlur(gray, (0, 0), cfg.presmooth_sigma_px)
+    stacks, mags, lmax = [], [], []
+    for lvl in range(cfg.levels):
+        if lvl > 0:
+            img = cv2.pyrDown(img)
+        gu = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+        gv = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+        mag = cv2.magnitude(gu, gv)
+        stacks.append((img, gu, gv))
+        mags.append(mag)
+        lmax.append(mag >= cv2.dilate(mag, np.ones((3, 3), np.uint8)) if cfg.nms else None)
+    return _Frame(t_s, stacks, mags, lmax, gray, reason)
+
+
+def sample_points(images: tuple[np.ndarray, ...], w_level: np.ndarray) -> np.ndarray:
+    """(N, C) bilinear samples of C (H, W) float32 images at (N, 2) level pixels (u, v)."""
+    out = np.empty((len(w_level), len(images)), np.float32)
+    if len(w_level) == 0:
+        return out
+    m = w_level.astype(np.float32).reshape(-1, 1, 2)
+    for c, img in enumerate(images):
+        out[:, c] = cv2.remap(
+            img, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        ).reshape(-1)
+    return out
+
+
+def select_points(level: _Level, frame: _Frame, lvl: int, cfg: DirectConfig) -> np.ndarray:
+    """Indices into level.roi_idx of the selected points of frame A at a level."""
+    mag = frame.mags[lvl].ravel()[level.roi_idx]
+    keep = mag > cfg.grad_threshold
+    if cfg.nms:
+        keep &= frame.local_max[lvl].ravel()[level.roi_idx]
+    sel = np.flatnonzero(keep)
+    if len(sel) > cfg.max_points:
+        sel = sel[np.argpartition(-mag[sel], cfg.max_points - 1)[: cfg.max_points]]
+        sel.sort()
+    return sel
+
+
+def frame_quality(gray: np.ndarray, roi_full: np.ndarray, cfg: DirectConfig) -> str:
+    """Empty string if the frame is usable, else why not (dark, saturated)."""
+    vals = gray[roi_full]
+    if vals.size == 0:
+        return "no road region of interest"
+    mean = float(vals.mean())
+    if mean < cfg.dark_level:
+        return f"dark frame (mean {mean:.1f} DN in the road ROI < {cfg.dark_level})"
+    sat = float(np.mean(vals >= cfg.saturated_level))
+    if sat > cfg.saturated_fraction:
+        return f"saturated frame ({100 * sat:.0f} % of the road ROI >= {cfg.saturated_level} DN)"
+    return ""
+
+
+# ------------------------------------------------------------------ estimator
+class EgoMotionEstimator:
+    """Base of every estimator: input checks, time update, CAN prior, flags, record.
+
+    ``step(image, t_s, can_speed_mps) -> EgoMotionRecord``: the first call only
+    initialises (``_first_frame``); later calls run the time update (eq. 19) and
+    the CAN speed update on the filter `ekf`, freeze the prior, and call
+    ``_measure`` (the subclass's measurement update). Subclasses set ``name``.
+    """
+
+    name: str = ""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        mount: CameraMount,
+        filter_cfg: FilterConfig,
+        can_missing_inflation: float = 4.0,
+    ) -> None:
+        if camera.kind != mount.base:
+            raise ValueError(
+                f"camera kind {camera.kind!r} does not match mount base {mount.base!r}"
+            )
+        self.camera, self.mount = camera, mount
+        self.K0 = mount.K0
+        self.R_car_cam = mount.R_car_cam
+        self.filter_cfg = filter_cfg
+        self.can_missing_inflation = can_missing_inflation
+        self.ekf = IteratedEKF(filter_cfg, self.R_car_cam, self.K0)
+        self._k = 0
+        self._t_prev: float | None = None
+        self._can_prev = math.nan
+        self._dts: list[float] = []
+
+    def step(
+        self,
+        image: np.ndarray,
+        t_s: float,
+        can_speed_mps: float | None,
+        compensate: bool | None = None,
+    ) -> EgoMotionRecord:
+        """Estimate the motion from the previous frame to ``image`` taken at t_s [s].
+
+        image: (H, W) gray or (H, W, 3) RGB of the camera's size; can_speed_mps:
+        latest CAN speed [m/s] (None / NaN when missing). compensate: also return
+        the motion-compensated previous frame (estimators that support it).
+        """
+        gray = to_gray(image, (self.camera.height, self.camera.width))
+        t_s, t_prev = float(t_s), self._t_prev
+        if not math.isfinite(t_s) or (t_prev is not None and not t_s > t_prev):
+            raise ValueError(
+                f"t_s must be finite and increase: frame {self._k} at {t_s} s"
+                + (f" after {t_prev} s" if t_prev is not None else "")
+            )
+        can, can_prev = valid_can(can_speed_mps), self._can_prev
+        k, self._k, self._t_prev, self._can_prev = self._k, self._k + 1, t_s, can
+        if t_prev is None:
+            return self._first(gray, t_s, can, k)
+        dt = t_s - t_prev
+        flags, reasons = [], []
+        cfg = self.filter_cfg
+        nominal = cfg.nominal_dt_s or (float(np.median(self._dts)) if self._dts else None)
+        if nominal is not None and dt > cfg.gap_factor * nominal:
+            flags.append("time-gap")
+            reasons.append(
+                f"time gap: dt {dt:.3f} s > {cfg.gap_factor} x nominal "
+                f"{nominal:.3f} s (process noise scaled by dt)"
+            )
+        else:
+            self._dts = (self._dts + [dt])[-15:]
+        # eq. 19: time update (Q grows with dt)
+        self.ekf.predict(dt)
+        if math.isnan(can):
+            flags.append("can-missing")
+            reasons.append("CAN speed missing: time-updated speed used, V covariance inflated")
+            S = np.ones(N_STATE)
+            S[V_SLICE] = math.sqrt(self.can_missing_inflation)
+            self.ekf.P = self.ekf.P * np.outer(S, S)
+        else:
+            # the pair's mean speed: mean of the CAN at both ends when both are known
+            self.ekf.fuse_can(can if math.isnan(can_prev) else 0.5 * (can + can_prev))
+        self.ekf.begin_update()
+        extra = self._measure(gray, t_s, dt, flags, reasons, compensate)
+        return make_record(
+            k,
+            t_s,
+            dt,
+            self.ekf,
+            self.R_car_cam,
+            can_speed_mps=can,
+            flags=tuple(flags),
+            reasons=reasons,
+            **extra,
+        )
+
+    def _first(self, gray: np.ndarray, t_s: float, can: float, k: int) -> EgoMotionRecord:
+        """First frame: no motion yet. The record shows the prior with the CAN speed."""
+        self._first_frame(gray, t_s, can)
+        ekf = self.ekf
+        if not math.isnan(can):
+            # V⁻ = R_cam_car (v_can, 0, 0); its covariance stays wide until the next CAN
+            ekf.x[V_SLICE] = self.R_car_cam.T @ np.array([can, 0.0, 0.0])
+        saved = ekf.x.copy(), ekf.P.copy()
+        if not math.isnan(can):
+            ekf.fuse_can(can)
+        ekf.begin_update()
+        rec = make_record(k, t_s, 0.0, ekf, self.R_car_cam, can_speed_mps=can, flags=("init",))
+        rec.reason = "first frame: prior only"
+        ekf.x, ekf.P = saved  # the CAN of this frame is fused with the next one
+        return rec
+
+    def _first_frame(self, gray: np.ndarray, t_s: float, can: float) -> None:
+        """Keep what the next step needs from the first frame (subclasses)."""
+
+    def _measure(
+        self,
+        gray: np.ndarray,
+        t_s: float,
+        dt: float,
+        flags: list[str],
+        reasons: list[str],
+        compensate: bool | None,
+    ) -> dict[str, Any]:
+        """Measurement update of ``ekf`` from the previous frame and ``gray``; returns
+        extra record fields. The base class measures nothing (prior only)."""
+        return {}
+
+
+class DirectEstimator(EgoMotionEstimator):
+    """Direct (gradient-based) IEKF ego-motion estimator of the paper (section 4).
+
+    ``step(image, t_s, can_speed_mps) -> EgoMotionRecord``; the first call only
+    initialises. Holds the previous frame's pyramid, the per-level camera
+    precomputations (`_Level`) and the filter (`IteratedEKF`).
+    """
+
+    name = "direct"
+
+    def __init__(
+        self, camera: CameraModel, mount: CameraMount, config: DirectConfig | None = None
+    ) -> None:
+        cfg = config if config is not None else default_config(camera.kind)
+        super().__init__(camera, mount, cfg.filter, cfg.can_missing_inflation)
+        self.cfg = cfg
+        self.levels = build_levels(camera, mount, cfg)
+        roi0 = np.zeros(camera.height * camera.width, bool)
+        roi0[self.levels[0].roi_idx] = True
+        self._roi_full = roi0.reshape(camera.height, camera.width)
+        self._prev: _Frame | None = None
+        self._pixel_rays: np.ndarray | None = None
+
+    def compensate(
+        self, image_prev: np.ndarray, dt_s: float, x: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(H, W) float32 previous frame warped onto the current one with x (default x̂).
+
+        Per-pixel rays are computed once; then one homography multiply (H^-1: rays of
+        the current frame to the previous one), one projection and one cv2.remap.
+        Pixels off the road plane's side (``K^T P <= 0``) or without image are 0.
+        """
+        if self._pixel_rays is None:
+            self._pixel_rays = self.camera.pixel_rays().astype(np.float64).reshape(-1, 3)
+        x = self.ekf.x if x is None else x
+        H = homography(x, self.K0, dt_s)
+        P_a = self._pixel_rays @ np.linalg.inv(H).T
+        w_a = self.camera.project(P_a)
+        w_a[~(P_a @ self.K0 > 0)] = -10.0
+        w_a = np.nan_to_num(w_a, nan=-10.0).astype(np.float32)
+        m = w_a.reshape(self.camera.height, self.camera.width, 2)
+        src = np.asarray(image_prev, dtype=np.float32)
+        return cv2.remap(
+            src, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        )
+
+    # -- internals ----------------------------------------------------------------
+    def _frame(self, gray: np.ndarray, t_s: float) -> _Frame:
+        return build_frame(gray, t_s, self.cfg, frame_quality(gray, self._roi_full, self.cfg))
+
+    def _first_frame(self, gray: np.ndarray, t_s: float, can: float) -> None:
+        self._prev = self._frame(gray, t_s)
+
+    def _measure(
+        self,
+        gray: np.ndarray,
+        t_s: float,
+        dt: float,
+        flags: list[str],
+        reasons: list[str],
+        compensate: bool | None,
+    ) -> dict[str, Any]:
+        prev, frame = self._prev, self._frame(gray, t_s)
+        self._prev = frame
+        extra: dict[str, Any] = {}
+        bad = [
+            f"{which} {r}"
+            for which, r in (("previous", prev.reason), ("current", frame.reason))
+            if r
+        ]
+        if bad:
+            flags.append("bad-frame")
+            reasons.extend(bad)
+        else:
+            extra = self._estimate(prev, frame, dt, flags, reasons)
+        if compensate if compensate is not None else self.cfg.compensate:
+            extra["compensated"] = self.compensate(prev.gray, dt)
+        return extra
+
+    def _linearise(
+        self,
+        level: _Level,
+        lvl: int,
+        rays: np.ndarray,
+        a_val: np.ndarray,
+        B: _Frame,
+        dt: float,
+        included: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Steps 1-3 at x̂: (idx (M,) points that land in B, Δz (M,), C (M, 9), R (M,))."""
+        cfg, cam, x = self.cfg, self.camera, self.ekf.x
+        s = float(level.scale)
+        # step 1: warp the points into B with x̂ (eq. 3, 6-10)
+        P_b = map_rays(rays, homography(x, self.K0, dt))
+        w_b = cam.project(P_b) / s  # level pixels
+        hl, wl = level.shape
+        inside = np.all(np.isfinite(w_b), axis=1) & (P_b @ self.K0 > 0)
+        w_b[~inside] = -1.0
+        inside &= (w_b[:, 0] >= 0) & (w_b[:, 0] <= wl - 1) & (w_b[:, 1] >= 0)
+        inside &= w_b[:, 1] <= hl - 1
+        ui = np.rint(w_b[:, 0]).astype(int).clip(0, wl - 1)
+        vi = np.rint(w_b[:, 1]).astype(int).clip(0, hl - 1)
+        idx = np.flatnonzero(inside & (level.valid_b[vi, ui] > 0))
+        # step 2: brightness and spatial gradient of B at w_b, temporal gradient
+        smp = sample_points(B.stacks[lvl], w_b[idx])
+        b_val, g = smp[:, 0].astype(np.float64), smp[:, 1:3].astype(np.float64)
+        a_i = a_val[idx]
+        gain = 1.0
+        if cfg.gain_compensation and len(idx):
+            use = included[idx] if included[idx].sum() >= cfg.min_points else slice(None)
+            gain = float(np.dot(a_i[use], b_val[use]) / max(np.dot(b_val[use], b_val[use]), 1e-9))
+        # eq. 15: Δz = -g_t, g_t = B(w_b) - A(w_a) (B scaled by the brightness gain)
+        dz = a_i - gain * b_val
+        g *= gain
+        R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * np.sum(g * g, axis=1)
+        # step 3, eq. 14-16: C_i = g_i^T dw_b/dx (gradient per full-resolution pixel)
+        C = constraint_rows(cam, rays[idx], P_b[idx], g / s, dh_dx(x, self.K0, dt))
+        return idx, dz, C, R
+
+    def _classify(
+        self, dz: np.ndarray, C: np.ndarray, R: np.ndarray, included: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Step 4: (use (M,) bool, R (M,) possibly rescaled/reweighted, noise scale s²).
+
+        s² = median(Δz²/R) / 0.455 (the median of a chi² with 1 dof): about 1 when
+        the residuals match R; ``adaptive_noise`` multiplies R by it (clipped).
+        """
+        cfg = self.cfg
+        s2 = float(np.median(dz * dz / R)) / 0.455
+        if cfg.adaptive_noise:
+            R = R * min(max(s2, 0.25), 100.0)
+        if cfg.outliers == "snooping":
+            # eq. 20-21: each residual against its expected variance, reclassified
+            use, _ = data_snooping(dz, C, self.ekf.P, R, included, cfg.snoop_threshold)
+            return use, R, s2
+        if cfg.outliers in ("huber", "tukey"):
+            wgt = robust_weights(dz, np.sqrt(R), cfg.outliers, cfg.robust_k)
+            return wgt > 0, R / np.maximum(wgt, 1e-12), s2
+        return np.ones(len(dz), bool), R, s2
+
+    def _estimate(
+        self, A: _Frame, B: _Frame, dt: float, flags: list[str], reasons: list[str]
+    ) -> dict[str, Any]:
+        """Coarse-to-fine IEKF iterations (section 4.2); returns the record's point fields."""
+        cfg, ekf = self.cfg, self.ekf
+        iters: list[int] = []
+        done_levels = 0
+        pts_out, labels_out = np.zeros((0, 2)), np.zeros(0, np.int8)
+        s2 = noise_scale = math.nan
+        for lvl in reversed(range(cfg.levels)):
+            level = self.levels[lvl]
+            sel = select_points(level, A, lvl, cfg)
+            labels = np.full(len(sel), UNUSED, np.int8)
+            rays = level.roi_rays[sel]
+            a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
+            included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
+            n_it = 0
+            for _ in range(cfg.iterations[cfg.levels - 1 - lvl] if len(sel) else 0):
+                idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included)
+                if len(idx) < cfg.min_points:
+                    break
+                use, R, s2 = self._classify(dz, C, R, included[idx])
+                included[:] = False
+                included[idx[use]] = True
+                labels[:] = UNUSED
+                labels[idx] = np.where(use, INLIER, OUTLIER)
+                if use.sum() < cfg.min_points:
+                    break
+                P_old = ekf.P
+                # step 5, eq. 17-18: IEKF measurement update with the inliers
+                dx = ekf.update(C[use], dz[use], R[use])
+                n_it += 1
+                if float(dx @ np.linalg.solve(P_old, dx)) < cfg.step_tol**2:
+                    break
+            iters.append(n_it)
+            done_levels += n_it > 0
+            if lvl == 0:
+                pts_out, labels_out, noise_scale = level.roi_w[sel], labels, s2
+        n_pts, n_in = len(pts_out), int(np.sum(labels_out == INLIER))
+        if done_levels == 0:
+            flags.append("textureless")
+            reasons.append(
+                f"textureless road: fewer than {cfg.min_points} usable points "
+                f"with gradient > {cfg.grad_threshold} DN/px"
+            )
+            ekf.set_prior(ekf.x_prior, ekf.P_prior)
+        elif n_in < max(cfg.min_points, cfg.min_inlier_fraction * n_pts):
+            flags.append("few-inliers")
+            reasons.append(
+                f"only {n_in} of {n_pts} finest-level points are inliers: "
+                "estimate unreliable, prior kept"
+            )
+            ekf.set_prior(ekf.x_prior, ekf.P_prior)
+        elif noise_scale > cfg.max_noise_scale:
+            flags.append("poor-fit")
+            reasons.append(
+                f"residuals {math.sqrt(noise_scale):.1f}x the expected noise at the finest "
+                "level (motion outside the prior's reach?): estimate unreliable, prior kept"
+            )
+            ekf.set_prior(ekf.x_prior, ekf.P_prior)
+        return {
+            "noise_scale": noise_scale,
+            "n_points": n_pts,
+            "n_inliers": n_in,
+            "iterations": tuple(iters),
+            "points_px": pts_out,
+            "point_labels": labels_out,
+        }

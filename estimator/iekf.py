@@ -1,0 +1,256 @@
+"""Iterated extended Kalman filter of the ego-motion state (paper section 4, eq. 14-21).
+
+Symbols (one frame pair a -> b):
+
+- ``x`` (9,): state (V, W, A) of `estimator.homography` (V [m/s], W [rad/s], A [rad],
+  nominal camera frame c); ``x̂`` its current estimate.
+- ``P`` (9, 9): covariance of ``x̂``.
+- ``x⁻``, ``P⁻``: the prior of this frame pair, i.e. the previous posterior moved
+  forward by the time update (eq. 19: ``x⁻ = B x̂``, ``P⁻ = B P Bᵀ + Q``) and
+  corrected by the CAN speed (`can_speed_update`).
+- ``B`` (9, 9), ``Q`` (9, 9): state transition and process noise (`transition`).
+- ``z``: the measurements, one per image point: the brightness of image A at the
+  point. The model predicts it as the brightness of image B at the warped
+  pixel ``w_b(x)``.
+- ``Δz`` (N,): innovation at ``x̂``: ``Δz = -g_t``, with ``g_t = B(w_b(x̂)) - A(w_a)``
+  the temporal gradient (eq. 15).
+- ``C`` (N, 9): Jacobian of the predicted measurement, ``C_i = g_iᵀ dw_b/dx``
+  (eq. 14, 16; `estimator.motion_model.constraint_rows`).
+- ``R`` (N,): measurement noise variances (diagonal), [intensity²].
+
+Measurement update, iterated (each iteration relinearises at the new x̂; it is a
+Gauss-Newton step on the posterior cost, the prior term keeps it a MAP estimate):
+
+- eq. 17: ``P ← [Cᵀ R⁻¹ C + P⁻⁻¹]⁻¹``
+- eq. 18: ``x̂ ← x̂ + P [Cᵀ R⁻¹ Δz − P⁻⁻¹ (x̂ − x⁻)]``
+
+Outliers (section 4.1): data snooping compares each point's residual with its
+expected variance, ``R + C_i P C_iᵀ`` if the point is currently excluded (eq. 20),
+``R − C_i P C_iᵀ`` if it is included (eq. 21), and reclassifies all points every
+iteration (`data_snooping`). Robust-M reweighting (Huber or Tukey) is the
+alternative (`robust_weights`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.homography import A_SLICE, N_STATE, V_SLICE, W_SLICE, check_state
+
+_MIN_INLIER_VAR = 0.05  # eq. 21 variance is floored at this fraction of R (never <= 0)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Process model, priors and CAN noise of the filter (units beside each value).
+
+    Axes "forward / lateral / vertical" are the car's x, y, z; "plane / normal"
+    split A into rotations about axes in the road plane (roll, pitch: vibration)
+    and about the road normal (yaw of the camera on its mount: rigid).
+    """
+
+    # time update (eq. 19)
+    V_walk_mps: tuple[float, float, float] = (1.5, 0.5, 0.2)  # [m/s/sqrt(s)] fwd, lat, vert
+    W_walk_rps: float = 0.3  # [rad/s/sqrt(s)] random walk of W (vibration rate included)
+    A_tau_s: float = 0.3  # [s] correlation time of A (mean-reverting towards the mount)
+    A_sigma_plane_rad: float = float(np.radians(1.0))  # [rad] stationary std, roll/pitch
+    A_sigma_normal_rad: float = float(np.radians(0.05))  # [rad] stationary std, yaw
+    # prior of the first frame pair (before the CAN speed)
+    V0_sigma_mps: tuple[float, float, float] = (30.0, 1.0, 0.3)  # [m/s] fwd, lat, vert
+    W0_sigma_rps: float = 0.2  # [rad/s]
+    # CAN speed (a pseudo-measurement of the forward speed, `can_speed_update`)
+    can_rel_sigma: float = 0.12  # [-] relative std: a 10 % scale error stays correctable
+    can_abs_sigma_mps: float = 0.3  # [m/s] absolute std (noise, quantisation)
+    # time gaps
+    nominal_dt_s: float | None = None  # [s] expected frame interval; None: learnt
+    gap_factor: float = 2.5  # [-] dt > gap_factor * nominal is a gap (flagged)
+
+
+def _car_cov(R_car_cam: np.ndarray, sig_car: tuple[float, float, float]) -> np.ndarray:
+    """(3, 3) covariance in camera axes of a diagonal one in car axes (std sig_car)."""
+    return R_car_cam.T @ np.diag(np.square(sig_car)) @ R_car_cam
+
+
+def _A_cov(K0: np.ndarray, sig_plane: float, sig_normal: float) -> np.ndarray:
+    """(3, 3) covariance of A: sig_normal about the road normal, sig_plane across."""
+    n = np.asarray(K0, dtype=float) / np.linalg.norm(K0)
+    nn = np.outer(n, n)
+    return sig_plane**2 * (np.eye(3) - nn) + sig_normal**2 * nn
+
+
+def initial_prior(
+    cfg: FilterConfig, R_car_cam: np.ndarray, K0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(x (9,), P (9, 9)) before any measurement: V = W = A = 0, wide on the forward speed."""
+    P = np.zeros((N_STATE, N_STATE))
+    P[V_SLICE, V_SLICE] = _car_cov(R_car_cam, cfg.V0_sigma_mps)
+    P[W_SLICE, W_SLICE] = np.eye(3) * cfg.W0_sigma_rps**2
+    P[A_SLICE, A_SLICE] = _A_cov(K0, cfg.A_sigma_plane_rad, cfg.A_sigma_normal_rad)
+    return np.zeros(N_STATE), P
+
+
+def transition(
+    dt_s: float, cfg: FilterConfig, R_car_cam: np.ndarray, K0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(B (9, 9), Q (9, 9)) of the time update over dt [s] (eq. 19).
+
+    V, W: random walks (B = I, Q = walk² dt). A: first-order Gauss-Markov towards
+    the nominal mount (A = 0), ``A_k+1 = rho A_k + noise`` with ``rho = exp(-dt/tau)``
+    and ``Q_A = Sigma_A (1 - rho²)`` so that A keeps its stationary covariance
+    Sigma_A (`FilterConfig.A_sigma_*`): vibration oscillates about the mount.
+    """
+    rho = float(np.exp(-dt_s / cfg.A_tau_s))
+    B = np.eye(N_STATE)
+    B[A_SLICE, A_SLICE] *= rho
+    Q = np.zeros((N_STATE, N_STATE))
+    Q[V_SLICE, V_SLICE] = _car_cov(R_car_cam, cfg.V_walk_mps) * dt_s
+    Q[W_SLICE, W_SLICE] = np.eye(3) * cfg.W_walk_rps**2 * dt_s
+    Q[A_SLICE, A_SLICE] = _A_cov(K0, cfg.A_sigma_plane_rad, cfg.A_sigma_normal_rad) * (1 - rho**2)
+    return B, Q
+
+
+def time_update(
+    x: np.ndarray, P: np.ndarray, B: np.ndarray, Q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """eq. 19: ``x ← B x``, ``P ← B P Bᵀ + Q``."""
+    # eq. 19: time update
+    return B @ x, _sym(B @ P @ B.T + Q)
+
+
+def can_speed_update(
+    x: np.ndarray, P: np.ndarray, v_can_mps: float, R_car_cam: np.ndarray, cfg: FilterConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman update with the CAN speed as a measurement of the forward speed.
+
+    The measured quantity is ``(R_car_cam V)[0]`` (forward speed of the viewpoint
+    in the car frame); its std is ``can_rel_sigma |v| + can_abs_sigma_mps``. On the
+    first frame pair (wide prior) this sets ``V⁻ ≈ R_cam_car (v_can, 0, 0)``.
+    """
+    h = np.zeros(N_STATE)
+    h[V_SLICE] = R_car_cam[0]
+    var = (cfg.can_rel_sigma * abs(v_can_mps) + cfg.can_abs_sigma_mps) ** 2
+    Ph = P @ h
+    s = float(h @ Ph) + var
+    k = Ph / s
+    x_new = x + k * (v_can_mps - float(h @ x))
+    return x_new, _sym(P - np.outer(k, Ph))
+
+
+def iekf_update(
+    x: np.ndarray,
+    x_prior: np.ndarray,
+    P_prior_inv: np.ndarray,
+    C: np.ndarray,
+    dz: np.ndarray,
+    R_diag: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One IEKF iteration: (x̂ (9,), P (9, 9)) from C (N, 9), Δz (N,), R (N,) (eq. 17-18)."""
+    Ci = C / R_diag[:, None]  # R⁻¹ C
+    info = C.T @ Ci + P_prior_inv
+    # eq. 17: P = [Cᵀ R⁻¹ C + P⁻⁻¹]⁻¹
+    L = np.linalg.cholesky(_sym(info))
+    L_inv = np.linalg.inv(L)
+    P = L_inv.T @ L_inv
+    # eq. 18: x̂ ← x̂ + P [Cᵀ R⁻¹ Δz − P⁻⁻¹ (x̂ − x⁻)]
+    x_new = x + P @ (Ci.T @ dz - P_prior_inv @ (x - x_prior))
+    return x_new, P
+
+
+def data_snooping(
+    residual: np.ndarray,
+    C: np.ndarray,
+    P: np.ndarray,
+    R_diag: np.ndarray,
+    inlier: np.ndarray,
+    threshold: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reclassify points (section 4.1): (inlier (N,) bool, Mahalanobis² d2 (N,)).
+
+    residual: (N,) ``Δz_i`` at the current x̂; C (N, 9); P (9, 9) the current
+    covariance; R_diag (N,); inlier: (N,) current labels (True = used in x̂).
+    Expected variance: eq. 20 ``R + C_i P C_iᵀ`` for excluded points, eq. 21
+    ``R − C_i P C_iᵀ`` for included ones (floored at a small fraction of R).
+    threshold: d2 above which a point is an outlier (e.g. 3² for 3 sigma).
+    """
+    cpc = np.sum((C @ P) * C, axis=1)  # C_i P C_iᵀ
+    # eq. 20 / eq. 21: expected residual variance of an excluded / included point
+    var = np.where(inlier, np.maximum(R_diag - cpc, _MIN_INLIER_VAR * R_diag), R_diag + cpc)
+    d2 = residual**2 / var
+    return d2 <= threshold, d2
+
+
+def robust_weights(residual: np.ndarray, sigma: np.ndarray, kind: str, k: float) -> np.ndarray:
+    """(N,) Robust-M weights of normalised residuals ``e = residual / sigma``.
+
+    kind ``"huber"``: ``min(1, k/|e|)``; ``"tukey"``: ``(1 - (e/k)²)²`` for ``|e| < k``, else 0.
+    The update then uses ``R / w`` (zero weight: point dropped).
+    """
+    e = np.abs(residual / sigma)
+    if kind == "huber":
+        return np.minimum(1.0, k / np.maximum(e, 1e-12))
+    if kind == "tukey":
+        return np.where(e < k, (1.0 - (e / k) ** 2) ** 2, 0.0)
+    raise ValueError(f"robust weighting must be 'huber' or 'tukey', got {kind!r}")
+
+
+def _sym(M: np.ndarray) -> np.ndarray:
+    return 0.5 * (M + M.T)
+
+
+class IteratedEKF:
+    """The filter's state across frames: posterior, prior and the iterations between them.
+
+    Attributes:
+        x: (9,) current estimate x̂ (V [m/s], W [rad/s], A [rad], frame c).
+        P: (9, 9) its covariance.
+        x_prior: (9,) prior x⁻ of the current frame pair.
+        P_prior: (9, 9) its covariance P⁻; P_prior_inv (9, 9) its inverse.
+        B, Q: (9, 9) transition and process noise of the last time update (eq. 19).
+        n_iterations: measurement-update iterations since the prior was set.
+    """
+
+    def __init__(self, cfg: FilterConfig, R_car_cam: np.ndarray, K0: np.ndarray) -> None:
+        self.cfg = cfg
+        self.R_car_cam = np.asarray(R_car_cam, dtype=float)
+        self.K0 = np.asarray(K0, dtype=float)
+        self.x, self.P = initial_prior(cfg, self.R_car_cam, self.K0)
+        self.B = np.eye(N_STATE)
+        self.Q = np.zeros((N_STATE, N_STATE))
+        self.set_prior(self.x, self.P)
+
+    def predict(self, dt_s: float, q_scale: float = 1.0) -> None:
+        """Time update over dt [s] (eq. 19); Q is multiplied by q_scale (inflation)."""
+        self.B, Q = transition(dt_s, self.cfg, self.R_car_cam, self.K0)
+        self.Q = Q * q_scale
+        self.x, self.P = time_update(self.x, self.P, self.B, self.Q)
+
+    def fuse_can(self, v_can_mps: float) -> None:
+        """CAN forward speed as a measurement (`can_speed_update`)."""
+        self.x, self.P = can_speed_update(self.x, self.P, v_can_mps, self.R_car_cam, self.cfg)
+
+    def inflate(self, factor: float) -> None:
+        """Multiply P by factor (>= 1): less trust in the prior after a degraded step."""
+        self.P = self.P * factor
+
+    def set_prior(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Start a measurement update: x⁻ = x̂ = x, P⁻ = P = P (section 4.2)."""
+        self.x_prior = check_state(x, "prior x")
+        self.P_prior = _sym(np.asarray(P, dtype=float))
+        self.P_prior_inv = _sym(np.linalg.inv(self.P_prior))
+        self.x = self.x_prior.copy()
+        self.P = self.P_prior.copy()
+        self.n_iterations = 0
+
+    def begin_update(self) -> None:
+        """Freeze the current (time-updated, CAN-corrected) state as the prior x⁻, P⁻."""
+        self.set_prior(self.x, self.P)
+
+    def update(self, C: np.ndarray, dz: np.ndarray, R_diag: np.ndarray) -> np.ndarray:
+        """One iterated measurement update (eq. 17-18); returns the step Δx̂ (9,)."""
+        x_new, P = iekf_update(self.x, self.x_prior, self.P_prior_inv, C, dz, R_diag)
+        dx = x_new - self.x
+        self.x, self.P = x_new, P
+        self.n_iterations += 1
+        return dx

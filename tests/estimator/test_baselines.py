@@ -1,0 +1,76 @@
+"""Baselines (CAN only, feature tracks) and the estimator registry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from estimator.baselines import (
+    CanOnlyEstimator,
+    FeatureEstimator,
+    make_estimator,
+)
+from estimator.direct import DirectEstimator, EgoMotionRecord
+from tests.estimator.test_direct import CAN_SCALE, DT, SPEED, _camera, _errors, _pair
+
+
+def test_registry_builds_each_and_names_unknown_choices() -> None:
+    camera, mount, _ = _camera("omni-near")
+    assert isinstance(make_estimator("direct", camera, mount), DirectEstimator)
+    assert isinstance(make_estimator("can-only", camera, mount), CanOnlyEstimator)
+    assert isinstance(make_estimator("features", camera, mount), FeatureEstimator)
+    with pytest.raises(ValueError, match=r"'kalman'.*direct, can-only, features"):
+        make_estimator("kalman", camera, mount)
+    with pytest.raises(ValueError, match=r"features\.max_corner"):
+        make_estimator("features", camera, mount, max_corner=10)
+    with pytest.raises(ValueError, match=r"direct\.filter\.can_sigma"):
+        make_estimator("direct", camera, mount, filter={"can_sigma": 1.0})
+    est = make_estimator("direct", camera, mount, max_points=500, filter={"W_walk_rps": 0.1})
+    assert est.cfg.max_points == 500 and est.cfg.filter.W_walk_rps == 0.1
+
+
+def test_can_only_is_dead_reckoning() -> None:
+    camera, mount, _ = _camera("omni-near")
+    img_a, img_b, x_true = _pair("omni-near")
+    est = make_estimator("can-only", camera, mount)
+    est.step(img_a, 0.3, 20.0)
+    rec = est.step(img_b, 0.3 + DT, 20.0)
+    assert isinstance(rec, EgoMotionRecord) and not rec.degraded
+    assert rec.speed_mps == pytest.approx(20.0, rel=1e-3)
+    assert np.allclose(rec.x, rec.x_prior) and np.allclose(rec.W, 0.0)
+    rec = est.step(img_a, 0.3 + 2 * DT, math.nan)
+    assert "can-missing" in rec.flags and rec.speed_mps == pytest.approx(20.0, rel=1e-3)
+    with pytest.raises(ValueError, match="expected 640x640"):
+        est.step(np.zeros((10, 10), np.uint8), 1.0, 20.0)
+
+
+@pytest.mark.parametrize("preset", ["omni-near", "rectilinear-rear-left"])
+def test_features_fit_the_planar_motion(preset: str) -> None:
+    camera, mount, _ = _camera(preset)
+    img_a, img_b, x_true = _pair(preset)
+    est = make_estimator("features", camera, mount)
+    est.step(img_a, 0.3, SPEED * CAN_SCALE)
+    rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
+    assert not rec.degraded, rec.reason
+    v_pct, w_dps, a_deg = _errors(rec, x_true)
+    print(
+        f"features {preset}: {rec.n_inliers}/{rec.n_points} tracks, V {v_pct:.2f} %, "
+        f"W {w_dps.round(2)} deg/s, A {a_deg.round(3)} deg"
+    )
+    assert v_pct < 2.0  # the CAN prior was 8 % off
+    assert np.all(w_dps < 2.0)
+    assert rec.n_inliers > 0.5 * rec.n_points
+    assert np.all(np.linalg.eigvalsh(rec.P) > 0)
+
+
+def test_features_on_textureless_road_keep_the_prior() -> None:
+    camera, mount, _ = _camera("omni-near")
+    img_a, _, _ = _pair("omni-near")
+    flat = np.where(img_a > 0, 120, 0).astype(np.uint8)
+    est = make_estimator("features", camera, mount)
+    est.step(flat, 0.3, 20.0)
+    rec = est.step(flat, 0.3 + DT, 20.0)
+    assert rec.degraded and "no-features" in rec.flags
+    assert np.array_equal(rec.x, rec.x_prior)

@@ -1,0 +1,142 @@
+"""The filter (eq. 17-21): update vs filterpy and vs a MAP solver, snooping, time update, CAN."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter
+from scipy.optimize import least_squares
+
+from estimator.iekf import (
+    FilterConfig,
+    IteratedEKF,
+    can_speed_update,
+    data_snooping,
+    iekf_update,
+    initial_prior,
+    robust_weights,
+    time_update,
+    transition,
+)
+from estimator.mount import CameraMount
+
+MOUNT = CameraMount()
+
+
+def _spd(rng: np.random.Generator, n: int = 9) -> np.ndarray:
+    M = rng.normal(size=(n, n))
+    return M @ M.T + n * np.eye(n)
+
+
+def test_one_iteration_is_the_kalman_update_of_filterpy() -> None:
+    """Linear measurement, first iteration from x⁻: eq. 17-18 = the textbook KF update."""
+    rng = np.random.default_rng(0)
+    x_prior, P_prior = rng.normal(size=9), _spd(rng)
+    C, R = rng.normal(size=(30, 9)), rng.uniform(0.5, 2.0, 30)
+    z = rng.normal(size=30)
+    x, P = iekf_update(x_prior, x_prior, np.linalg.inv(P_prior), C, z - C @ x_prior, R)
+    kf = KalmanFilter(dim_x=9, dim_z=30)  # reference implementation
+    kf.x, kf.P, kf.H, kf.R = x_prior.copy(), P_prior.copy(), C, np.diag(R)
+    kf.update(z)
+    assert np.allclose(x, kf.x, atol=1e-10)
+    assert np.allclose(P, kf.P, atol=1e-10)
+    # a second iteration on a linear model does not move: eq. 18 has reached the MAP
+    x2, _ = iekf_update(x, x_prior, np.linalg.inv(P_prior), C, z - C @ x, R)
+    assert np.allclose(x2, x, atol=1e-10)
+
+
+def test_iterations_converge_to_the_map_of_a_nonlinear_model() -> None:
+    rng = np.random.default_rng(1)
+    x_true = rng.normal(size=3)
+    x_prior, P_prior = x_true + 0.3, np.eye(3) * 0.5
+    A = rng.normal(size=(40, 3))
+
+    def h(x):  # mildly nonlinear measurement
+        return np.sin(A @ x) + 0.1 * (A @ x) ** 2
+
+    def jac(x):
+        return (np.cos(A @ x) + 0.2 * (A @ x))[:, None] * A
+
+    z = h(x_true) + rng.normal(0, 0.05, 40)
+    R = np.full(40, 0.05**2)
+    x = x_prior.copy()
+    for _ in range(20):
+        x, P = iekf_update(x, x_prior, np.linalg.inv(P_prior), jac(x), z - h(x), R)
+    L_R, L_P = 1 / np.sqrt(R), np.linalg.cholesky(np.linalg.inv(P_prior)).T
+    sol = least_squares(lambda y: np.r_[L_R * (z - h(y)), L_P @ (y - x_prior)], x_prior)
+    assert np.allclose(x, sol.x, atol=1e-8)
+
+
+def test_data_snooping_uses_eq_20_and_21() -> None:
+    rng = np.random.default_rng(2)
+    P = _spd(rng, 9) * 1e-3
+    C = rng.normal(size=(4, 9))
+    R = np.full(4, 4.0)
+    cpc = np.einsum("ni,ij,nj->n", C, P, C)
+    residual = np.array([1.0, 1.0, 30.0, 30.0])
+    included = np.array([True, False, True, False])
+    inl, d2 = data_snooping(residual, C, P, R, included, 9.0)
+    assert np.allclose(d2[[0, 2]], residual[[0, 2]] ** 2 / (R[[0, 2]] - cpc[[0, 2]]))  # eq. 21
+    assert np.allclose(d2[[1, 3]], residual[[1, 3]] ** 2 / (R[[1, 3]] + cpc[[1, 3]]))  # eq. 20
+    assert inl.tolist() == [True, True, False, False]
+    # eq. 21 never divides by a non-positive variance
+    _, d2 = data_snooping(np.ones(4), C, P * 1e6, R, np.ones(4, bool), 9.0)
+    assert np.all(np.isfinite(d2)) and np.all(d2 > 0)
+
+
+def test_robust_weights() -> None:
+    r, s = np.array([0.0, 1.0, 2.0, 10.0]), np.ones(4)
+    assert np.allclose(robust_weights(r, s, "huber", 2.0), [1, 1, 1, 0.2])
+    w = robust_weights(r, s, "tukey", 4.0)
+    assert w[0] == 1.0 and w[-1] == 0.0 and np.all(np.diff(w) <= 0)
+    with pytest.raises(ValueError, match="'cauchy'"):
+        robust_weights(r, s, "cauchy", 1.0)
+
+
+def test_time_update_keeps_vibration_stationary() -> None:
+    """A is mean-reverting: from its stationary covariance, eq. 19 keeps it there."""
+    cfg = FilterConfig()
+    x, P = initial_prior(cfg, MOUNT.R_car_cam, MOUNT.K0)
+    x[6:] = [0.01, -0.01, 0.0]
+    B, Q = transition(1 / 15, cfg, MOUNT.R_car_cam, MOUNT.K0)
+    assert B.shape == Q.shape == (9, 9)
+    assert np.allclose(Q, Q.T) and np.all(np.linalg.eigvalsh(Q) >= -1e-15)
+    x2, P2 = time_update(x, P, B, Q)
+    assert np.allclose(P2[6:, 6:], P[6:, 6:])
+    assert np.allclose(x2[6:], np.exp(-1 / 15 / cfg.A_tau_s) * x[6:])  # decays towards 0
+    assert np.allclose(x2[:6], x[:6])  # V, W: random walks
+    # process noise grows with dt: a long gap widens V and W
+    _, Q_long = transition(1.0, cfg, MOUNT.R_car_cam, MOUNT.K0)
+    assert np.allclose(Q_long[:6, :6], 15 * Q[:6, :6])
+
+
+def test_can_prior_is_forward_and_not_overconfident() -> None:
+    cfg = FilterConfig()
+    x, P = initial_prior(cfg, MOUNT.R_car_cam, MOUNT.K0)
+    x[:3] = MOUNT.R_car_cam.T @ [19.0, 0.0, 0.0]  # first CAN message (the estimators' start)
+    x, P = can_speed_update(x, P, 20.0, MOUNT.R_car_cam, cfg)
+    v_car = MOUNT.R_car_cam @ x[:3]
+    assert v_car == pytest.approx([20.0, 0.0, 0.0], abs=0.05)  # V⁻ ≈ R_cam_car (v_can, 0, 0)
+    sigma_fwd = np.sqrt(MOUNT.R_car_cam[0] @ P[:3, :3] @ MOUNT.R_car_cam[0])
+    assert sigma_fwd > 0.1 * 20.0  # a 10 % scale error is within one sigma
+    # a precise image measurement of the speed 10 % lower wins over the CAN prior
+    C = np.zeros((1, 9))
+    C[0, :3] = MOUNT.R_car_cam[0]
+    x2, _ = iekf_update(x, x, np.linalg.inv(P), C, np.array([18.0 - C[0] @ x]), np.array([0.01]))
+    assert MOUNT.R_car_cam[0] @ x2[:3] == pytest.approx(18.0, abs=0.02)
+
+
+def test_filter_class_cycle() -> None:
+    ekf = IteratedEKF(FilterConfig(), MOUNT.R_car_cam, MOUNT.K0)
+    ekf.predict(1 / 15)
+    ekf.fuse_can(25.0)
+    ekf.begin_update()
+    assert np.array_equal(ekf.x, ekf.x_prior) and ekf.n_iterations == 0
+    rng = np.random.default_rng(3)
+    C = rng.normal(size=(50, 9))
+    dx = ekf.update(C, rng.normal(size=50), np.ones(50))
+    assert dx.shape == (9,) and ekf.n_iterations == 1
+    assert np.allclose(ekf.P, ekf.P.T) and np.all(np.linalg.eigvalsh(ekf.P) > 0)
+    assert np.all(np.diag(ekf.P) <= np.diag(ekf.P_prior) + 1e-12)
+    with pytest.raises(ValueError, match=r"shape \(9,\)"):
+        ekf.set_prior(np.zeros(3), np.eye(3))
