@@ -24,7 +24,9 @@ def read_egomotion_csv(path: Path) -> dict[str, np.ndarray]:
         rows = list(csv.DictReader(fh))
     if not rows:
         return {}
-    out = {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows]) for k in rows[0]}
+    out = {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows])
+           for k in rows[0] if k != "reason"}
+    out["reason"] = np.array([r.get("reason", "") for r in rows])
     out["frame"] = out["frame"].astype(int)
     return out
 

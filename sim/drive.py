@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from estimator.camera import CameraModel
@@ -140,25 +141,57 @@ def _vehicle_record(v, T_world_cam_nominal: np.ndarray, visible_px: int) -> dict
     }
 
 
-def static_flow_px(camera: CameraModel, rays: np.ndarray, range_m: np.ndarray, a: CameraPose,
-                   b: CameraPose) -> np.ndarray:
-    """(H, W, 2) image motion of the static scene between poses a and b [px].
+def scene_flow_px(camera: CameraModel, rays: np.ndarray, range_m: np.ndarray, ids: np.ndarray,
+                  a: CameraPose, b: CameraPose, displacement_m: dict[int, np.ndarray],
+                  step: int = 4) -> np.ndarray:
+    """(H, W, 2) image motion between poses a and b [px], for motion blur.
 
-    rays: (H, W, 3) unit rays of the actual camera at a; range_m: (H, W), inf for sky.
+    Computed on every ``step``-th pixel and interpolated (the flow is smooth).
+    rays: (H, W, 3) unit rays of the actual camera; range_m: (H, W), inf for sky;
+    ids: (H, W) vehicle ids (-1 none, 0 the ego car, which moves with the camera);
+    displacement_m: world displacement (3,) of each vehicle id between a and b
+    (translation only: the vehicles' own rotation is neglected).
     """
     H, W = range_m.shape
-    d = rays.reshape(-1, 3).astype(np.float64)
-    r = range_m.reshape(-1).astype(np.float64)
+    d = rays[::step, ::step].reshape(-1, 3).astype(np.float64)
+    r = range_m[::step, ::step].reshape(-1).astype(np.float64)
+    i = ids[::step, ::step].reshape(-1)
+    h, w = range_m[::step, ::step].shape
+    vv, uu = np.mgrid[0:H:step, 0:W:step]
+    w_a = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
     R_wa, R_wb = a.T_world_actual[:3, :3], b.T_world_actual[:3, :3]
-    R_ba = R_wb.T @ R_wa
-    t_ba = -R_wb.T @ (b.T_world_actual[:3, 3] - a.T_world_actual[:3, 3])
+    p_a, p_b = a.T_world_actual[:3, 3], b.T_world_actual[:3, 3]
+    dirs_w = d @ R_wa.T
     finite = np.isfinite(r) & np.all(np.isfinite(d), axis=1)
-    P_b = d @ R_ba.T  # points at infinity: rotation only
-    P_b[finite] += t_ba / r[finite, None]  # divide by range: direction of R P + t
-    w_a = camera.project(d)
-    w_b = camera.project(P_b)
-    flow = np.nan_to_num(w_b - w_a, nan=0.0, posinf=0.0, neginf=0.0)
-    return flow.reshape(H, W, 2).astype(np.float32)
+    P_b = dirs_w @ R_wb  # points at infinity: rotation only
+    X = p_a + r[finite, None] * dirs_w[finite]
+    disp = np.zeros((len(r), 3))
+    for vid, dv in displacement_m.items():
+        disp[i == vid] = dv
+    P_b[finite] = (X + disp[finite] - p_b) @ R_wb
+    flow = camera.project(P_b) - w_a
+    flow[i == 0] = 0.0  # the ego car's body moves with the camera
+    flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0).reshape(h, w, 2)
+    return cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+
+
+def imaged_mask(camera: CameraModel) -> np.ndarray:
+    """(H, W) bool: pixels that have an image: the valid field of view plus, for an
+    omni camera, the car-body disc in the centre (black beyond the mirror's rim)."""
+    mask = camera.valid_mask().copy()
+    body_deg = getattr(camera, "body_mask_deg", None)
+    if body_deg is not None:
+        rays = camera.pixel_rays()
+        with np.errstate(invalid="ignore"):
+            mask |= rays[..., 2] > np.cos(np.radians(body_deg))  # Z down: angle from nadir
+    return mask
+
+
+def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndarray]:
+    """World displacement (3,) of every vehicle present in both frames [m]."""
+    pos_b = {v.id: (v.x_m, v.y_m) for v in (f_b.ego, *f_b.others)}
+    return {v.id: np.array([pos_b[v.id][0] - v.x_m, pos_b[v.id][1] - v.y_m, 0.0])
+            for v in (f_a.ego, *f_a.others) if v.id in pos_b}
 
 
 @dataclass
@@ -208,7 +241,7 @@ class DriveRenderer:
                                                  self.scenario.seed)
             self._scenes = WorldScenes(static, id_static)
             self._rays = self.camera.pixel_rays()
-            self._mask = self._renderer.lookup.map_x >= 0
+            self._mask = imaged_mask(self.camera)
         return self._renderer
 
     def close(self) -> None:
@@ -227,7 +260,8 @@ class DriveRenderer:
         range_m = renderer.range_image(depth)
         flow = None
         if self.sensor.motion_blur and k + 1 < len(self.frames):
-            full = static_flow_px(self.camera, self._rays, range_m, pose, self.poses[k + 1])
+            full = scene_flow_px(self.camera, self._rays, range_m, ids, pose, self.poses[k + 1],
+                                 vehicle_displacements(self.frames[k], self.frames[k + 1]))
             flow = full * float(self.sensor.exposure_s * self.scenario.fps)
         rng = np.random.default_rng([self.scenario.seed, 4, k])
         out = apply_sensor(image, self.sensor, rng, gain=float(self.gains[k]),

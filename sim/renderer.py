@@ -71,6 +71,7 @@ class CubeMapLookup:
     map2: np.ndarray
     cos_to_axis: np.ndarray
     valid: np.ndarray
+    body_only: list[str]
 
     @classmethod
     def build(cls, camera: CameraModel, face_px: int, render_invalid: bool = True) -> CubeMapLookup:
@@ -104,7 +105,9 @@ class CubeMapLookup:
             map_y[sel] = slot * face_px + c - focal * d[:, 1] / depth_dir
             cos_axis[sel] = depth_dir
         m1, m2 = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
-        return cls(used_faces, face_px, focal, map_x, map_y, m1, m2, cos_axis, valid)
+        # faces that only valid-less pixels (the car body under an omni mirror) look up
+        body_only = [n for n in used_faces if not np.any(valid & (face_index == names.index(n)))]
+        return cls(used_faces, face_px, focal, map_x, map_y, m1, m2, cos_axis, valid, body_only)
 
 
 class OmniRenderer:
@@ -115,8 +118,12 @@ class OmniRenderer:
     """
 
     def __init__(self, camera: CameraModel, face_px: int = 512, z_near: float = 0.05,
-                 z_far: float = 400.0) -> None:
+                 z_far: float = 400.0, cache_body_faces: bool = True) -> None:
+        """cache_body_faces: render the faces that only show the car body (which moves
+        with the camera) once, and reuse them for every frame."""
         self.camera = camera
+        self.cache_body_faces = cache_body_faces
+        self._face_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.lookup = CubeMapLookup.build(camera, face_px)
         fov = 2.0 * np.arctan((face_px / 2.0) / self.lookup.focal_px)
         self._gl_camera = pyrender.PerspectiveCamera(yfov=fov, aspectRatio=1.0, znear=z_near,
@@ -143,9 +150,15 @@ class OmniRenderer:
         flags = pyrender.RenderFlags.FLAT if flat else pyrender.RenderFlags.NONE
         colors, depths = [], []
         try:
-            for pose in self._face_poses(T_world_cam):
-                scene.set_pose(node, pose)
-                c, d = self._renderer.render(scene, flags=flags)
+            for name, pose in zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True):
+                key = (id(scene), flat, name)
+                if key in self._face_cache:
+                    c, d = self._face_cache[key]
+                else:
+                    scene.set_pose(node, pose)
+                    c, d = self._renderer.render(scene, flags=flags)
+                    if self.cache_body_faces and name in self.lookup.body_only:
+                        self._face_cache[key] = (c, d)
                 colors.append(c)
                 depths.append(d)
         finally:

@@ -77,7 +77,7 @@ def apply_sensor(image: np.ndarray, model: SensorModel, rng: np.random.Generator
     if model.motion_blur and flow_px is not None:
         img = motion_blur(img, flow_px)
     if model.noise_std > 0:
-        img += rng.normal(0.0, model.noise_std, size=img.shape).astype(np.float32)
+        img += np.float32(model.noise_std) * rng.standard_normal(img.shape, dtype=np.float32)
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     if mask is not None:
         out[~mask] = 0
