@@ -21,8 +21,9 @@ def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str | None 
     """Call ``writer(tmp_path)`` then rename tmp_path to ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix,
-                               dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.stem}.", suffix=suffix or path.suffix, dir=path.parent
+    )
     os.close(fd)
     try:
         writer(Path(tmp))

@@ -23,9 +23,12 @@ from estimator.fileio import write_text
 from estimator.mount import CameraMount
 from estimator.recording import CanTrack
 
-HEADER = (["frame", "t_s"] + [f"{q}_{a}" for q in "VWA" for a in "xyz"]
-          + [f"P_{i}{i}" for i in range(9)]
-          + ["speed_mps", "yaw_rate_dps", "inliers", "degraded", "reason"])
+HEADER = (
+    ["frame", "t_s"]
+    + [f"{q}_{a}" for q in "VWA" for a in "xyz"]
+    + [f"P_{i}{i}" for i in range(9)]
+    + ["speed_mps", "yaw_rate_dps", "inliers", "degraded", "reason"]
+)
 
 
 @dataclass
@@ -41,10 +44,18 @@ def record_row(rec, mount: CameraMount) -> list:
     speed = float((R @ x[0:3])[0])
     yaw_dps = math.degrees(float((R @ x[3:6])[2]))
     reason = getattr(rec, "reason", "") or ""
-    return ([rec.frame, f"{rec.t_s:.6f}"] + [f"{v:.6g}" for v in x] + [f"{v:.4g}" for v in
-                                                                         np.diag(P)]
-            + [f"{speed:.4f}", f"{yaw_dps:.4f}", int(getattr(rec, "n_inliers", 0)),
-               int(bool(getattr(rec, "degraded", False))), reason])
+    return (
+        [rec.frame, f"{rec.t_s:.6f}"]
+        + [f"{v:.6g}" for v in x]
+        + [f"{v:.4g}" for v in np.diag(P)]
+        + [
+            f"{speed:.4f}",
+            f"{yaw_dps:.4f}",
+            int(getattr(rec, "n_inliers", 0)),
+            int(bool(getattr(rec, "degraded", False))),
+            reason,
+        ]
+    )
 
 
 def write_egomotion_csv(path: Path, records: list, mount: CameraMount) -> None:
@@ -56,10 +67,17 @@ def write_egomotion_csv(path: Path, records: list, mount: CameraMount) -> None:
     write_text(path, buf.getvalue())
 
 
-def estimate_frames(frames: Iterable[np.ndarray], times_s: np.ndarray, can: CanTrack,
-                    camera: CameraModel, mount: CameraMount, estimator: str = "direct",
-                    progress: bool = False, keep_images: bool = False,
-                    **config) -> EstimateRun:
+def estimate_frames(
+    frames: Iterable[np.ndarray],
+    times_s: np.ndarray,
+    can: CanTrack,
+    camera: CameraModel,
+    mount: CameraMount,
+    estimator: str = "direct",
+    progress: bool = False,
+    keep_images: bool = False,
+    **config,
+) -> EstimateRun:
     """Step the named estimator over frames; returns every per-frame record."""
     from estimator.baselines import make_estimator
 
@@ -84,8 +102,12 @@ def estimate_frames(frames: Iterable[np.ndarray], times_s: np.ndarray, can: CanT
 def _progress(it, total: int, label: str):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn()) as bar:
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    ) as bar:
         task = bar.add_task(label, total=total)
         for x in it:
             yield x

@@ -37,11 +37,13 @@ class PlanView:
     seen: np.ndarray
 
     @classmethod
-    def build(cls, camera: CameraModel, mount: CameraMount, range_m: float = 30.0,
-              m_per_px: float = 0.1) -> PlanView:
+    def build(
+        cls, camera: CameraModel, mount: CameraMount, range_m: float = 30.0, m_per_px: float = 0.1
+    ) -> PlanView:
         if range_m <= 0 or m_per_px <= 0:
-            raise ValueError(f"plan view needs range_m > 0 and m_per_px > 0, got {range_m}, "
-                             f"{m_per_px}")
+            raise ValueError(
+                f"plan view needs range_m > 0 and m_per_px > 0, got {range_m}, {m_per_px}"
+            )
         size = int(round(2 * range_m / m_per_px))
         x, y = cls._grid(range_m, m_per_px, size)
         cam_xy = np.asarray(mount.position_m[:2])
@@ -68,8 +70,9 @@ class PlanView:
     def warp(self, image: np.ndarray, nearest: bool = False) -> np.ndarray:
         """Plan view (S, S[, C]) of a camera image; unseen cells are 0."""
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        return cv2.remap(image, self.map_x, self.map_y, interp, borderMode=cv2.BORDER_CONSTANT,
-                         borderValue=0)
+        return cv2.remap(
+            image, self.map_x, self.map_y, interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        )
 
     def to_road(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(N, 2) road points (x fwd, y left) [m] of plan-view pixel centres."""

@@ -57,12 +57,14 @@ def read_can_csv(path: str | Path) -> CanTrack:
             except (TypeError, ValueError):
                 raise RecordingError(
                     f"{path}: row {row_no}: not a number (t_s={row['t_s']!r}, "
-                    f"speed_mps={row['speed_mps']!r})") from None
+                    f"speed_mps={row['speed_mps']!r})"
+                ) from None
             if not math.isfinite(ti):
                 raise RecordingError(f"{path}: row {row_no}: t_s is {ti}")
             if t and ti <= t[-1]:
-                raise RecordingError(f"{path}: row {row_no}: t_s={ti} does not increase "
-                                     f"(previous {t[-1]})")
+                raise RecordingError(
+                    f"{path}: row {row_no}: t_s={ti} does not increase (previous {t[-1]})"
+                )
             if vi < 0 or vi > 150:
                 raise RecordingError(f"{path}: row {row_no}: speed_mps={vi} out of 0..150")
             t.append(ti)
@@ -97,8 +99,7 @@ def iter_frames(source: str | Path) -> Iterator[np.ndarray]:
     """RGB frames (H, W, 3) uint8 of a video file or of a folder of PNG/JPEG images."""
     source = Path(source)
     if source.is_dir():
-        files = sorted(p for p in source.iterdir()
-                       if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+        files = sorted(p for p in source.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
         if not files:
             raise RecordingError(f"{source}: no PNG/JPEG frames in this folder")
         for p in files:

@@ -12,8 +12,11 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
-                  help="Simulation bench for omni-camera ego-motion and surround vehicle detection.")
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Simulation bench for omni-camera ego-motion and surround vehicle detection.",
+)
 bench_app = typer.Typer(no_args_is_help=True, help="Speed benchmarks (median ms or frames/s).")
 app.add_typer(bench_app, name="bench")
 console = Console(stderr=True)
@@ -36,7 +39,9 @@ def list_scenarios() -> None:
 @app.command()
 def render(
     scenario: str = typer.Argument(..., help="scenario name or path to a YAML file"),
-    out: Path = typer.Option(..., "--out", help="output folder (resumes if it holds a partial render)"),
+    out: Path = typer.Option(
+        ..., "--out", help="output folder (resumes if it holds a partial render)"
+    ),
     frames: int | None = typer.Option(None, help="render only the first N frames"),
     face_px: int | None = typer.Option(None, help="cube-map face size [px]"),
 ) -> None:
@@ -49,8 +54,10 @@ def render(
         res = render_drive(sc, out, face_px=face_px, max_frames=frames)
     except (ScenarioError, DriveError, ValueError) as e:
         _fail(str(e))
-    console.print(f"{res.n_frames} frames in {out} ({res.rendered} rendered now, "
-                  f"{res.render_ms_per_frame:.0f} ms/frame)")
+    console.print(
+        f"{res.n_frames} frames in {out} ({res.rendered} rendered now, "
+        f"{res.render_ms_per_frame:.0f} ms/frame)"
+    )
 
 
 @app.command()
@@ -58,8 +65,10 @@ def calibrate(
     points: Path = typer.Argument(..., help="CSV of world/image correspondences"),
     out: Path = typer.Option(..., "--out", help="camera YAML to write"),
     boundary: Path | None = typer.Option(None, help="CSV u,v of field-of-view boundary points"),
-    width: int = typer.Option(640), height: int = typer.Option(640),
-    max_elevation_deg: float = typer.Option(5.0), body_mask_deg: float = typer.Option(75.0),
+    width: int = typer.Option(640),
+    height: int = typer.Option(640),
+    max_elevation_deg: float = typer.Option(5.0),
+    body_mask_deg: float = typer.Option(75.0),
 ) -> None:
     """Calibrate a hyperbolic omni camera (paper section 3.2) and write camera.yaml."""
     from estimator.calibration import CalibrationError, calibrate_csv
@@ -67,9 +76,14 @@ def calibrate(
     from estimator.mount import CameraMount
 
     try:
-        cam, report = calibrate_csv(points, boundary_csv=boundary, width=width, height=height,
-                                    max_elevation_deg=max_elevation_deg,
-                                    body_mask_deg=body_mask_deg)
+        cam, report = calibrate_csv(
+            points,
+            boundary_csv=boundary,
+            width=width,
+            height=height,
+            max_elevation_deg=max_elevation_deg,
+            body_mask_deg=body_mask_deg,
+        )
     except (CalibrationError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     save_camera(out, cam, CameraMount())
@@ -88,9 +102,11 @@ def bench_render(
     from sim.bench import bench_render as run
 
     res = run(n_frames=frames, camera=camera, vehicles=vehicles)
-    console.print(f"render: {res['frames_per_s']:.2f} frames/s "
-                  f"({res['ms_per_frame']:.0f} ms/frame median over {res['frames']} frames, "
-                  f"{res['width']}x{res['height']}, {res['vehicles']} vehicles)")
+    console.print(
+        f"render: {res['frames_per_s']:.2f} frames/s "
+        f"({res['ms_per_frame']:.0f} ms/frame median over {res['frames']} frames, "
+        f"{res['width']}x{res['height']}, {res['vehicles']} vehicles)"
+    )
     if as_json:
         print(json.dumps(res))
 
@@ -126,7 +142,8 @@ def run(
         f"({e['speed_rmse_pct']:.2f} %, prior {e['prior_speed_rmse_mps']:.3f}), yaw-rate RMSE "
         f"{e['yaw_rate_rmse_dps']:.3f} deg/s (prior {e['prior_yaw_rate_rmse_dps']:.3f}), "
         f"A RMSE {e['angle_rmse_deg']:.3f} deg; {m['timing']['estimate_ms_per_frame']:.1f} "
-        f"ms/frame -> {out}/metrics.json")
+        f"ms/frame -> {out}/metrics.json"
+    )
 
 
 @app.command()
@@ -162,11 +179,13 @@ def estimate(
             if rate is None:
                 raise RecordingError(f"{video}: no frame rate known: give --fps or --timestamps")
             times = np.arange(100000) / rate
-        run = estimate_frames(iter_frames(video), times, can_track, cam, mount,
-                              estimator=estimator, progress=True)
+        run = estimate_frames(
+            iter_frames(video), times, can_track, cam, mount, estimator=estimator, progress=True
+        )
         out.mkdir(parents=True, exist_ok=True)
         write_egomotion_csv(out / "egomotion.csv", run.records, mount)
     except (RecordingError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
-    console.print(f"{len(run.records)} frames, {run.ms_per_frame:.1f} ms/frame -> "
-                  f"{out}/egomotion.csv")
+    console.print(
+        f"{len(run.records)} frames, {run.ms_per_frame:.1f} ms/frame -> {out}/egomotion.csv"
+    )

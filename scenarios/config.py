@@ -55,9 +55,7 @@ class SensorConfig(_Strict):
     @classmethod
     def exact(cls) -> SensorConfig:
         """All effects off: the rendered image as it is."""
-        return cls(
-            noise_std=0, motion_blur=False, gain_drift=0, vignetting=0, jpeg_quality=None
-        )
+        return cls(noise_std=0, motion_blur=False, gain_drift=0, vignetting=0, jpeg_quality=None)
 
 
 class Scenario(_Strict):
@@ -71,6 +69,7 @@ class Scenario(_Strict):
     ego_policy: str = "idm"  # "idm" (IDM + MOBIL lane changes) or "keep-lane"
     camera: str | dict[str, Any] = "omni-near"  # preset name or {preset: ..., overrides}
     view_range_m: float = Field(120.0, gt=5)  # [m] how far the scene is built
+    detection_range_m: float = Field(25.0, gt=1)  # [m] range of the detection evaluation
     can: CanConfig = CanConfig()
     vibration: VibrationConfig = VibrationConfig()
     sensor: SensorConfig = SensorConfig()
@@ -148,8 +147,11 @@ def _check_env(env_id: str, where: str) -> None:
     import highway_env  # noqa: F401  (registers the highway-env ids)
 
     if env_id not in gymnasium.registry:
-        known = sorted(k for k in gymnasium.registry if "-v" in k and "highway" in str(
-            gymnasium.registry[k].entry_point))
+        known = sorted(
+            k
+            for k in gymnasium.registry
+            if "-v" in k and "highway" in str(gymnasium.registry[k].entry_point)
+        )
         raise ScenarioError(f"{where}: key 'env': unknown environment {env_id!r}; known: {known}")
 
 

@@ -24,8 +24,11 @@ def read_egomotion_csv(path: Path) -> dict[str, np.ndarray]:
         rows = list(csv.DictReader(fh))
     if not rows:
         return {}
-    out = {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows])
-           for k in rows[0] if k != "reason"}
+    out = {
+        k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows])
+        for k in rows[0]
+        if k != "reason"
+    }
     out["reason"] = np.array([r.get("reason", "") for r in rows])
     out["frame"] = out["frame"].astype(int)
     return out
@@ -44,8 +47,11 @@ def ego_series(est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount) -
     """
     R = mount.R_car_cam
     by_frame = {g["frame"]: g for g in gt}
-    rows = [i for i, f in enumerate(est["frame"])
-            if f in by_frame and by_frame[f]["motion_from_prev"] is not None]
+    rows = [
+        i
+        for i, f in enumerate(est["frame"])
+        if f in by_frame and by_frame[f]["motion_from_prev"] is not None
+    ]
     V = np.stack([est[c][rows] for c in STATE_COLS[0:3]], axis=1)
     W = np.stack([est[c][rows] for c in STATE_COLS[3:6]], axis=1)
     A = np.stack([est[c][rows] for c in STATE_COLS[6:9]], axis=1)
@@ -56,10 +62,14 @@ def ego_series(est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount) -
     prior = np.array([by_frame[int(est["frame"][i])]["can_speed_mps"] for i in rows])
     return {
         "t_s": est["t_s"][rows],
-        "speed_est": (V @ R.T)[:, 0], "speed_gt": (Vg @ R.T)[:, 0], "speed_prior": prior,
-        "yaw_est": np.degrees((W @ R.T)[:, 2]), "yaw_gt": np.degrees((Wg @ R.T)[:, 2]),
+        "speed_est": (V @ R.T)[:, 0],
+        "speed_gt": (Vg @ R.T)[:, 0],
+        "speed_prior": prior,
+        "yaw_est": np.degrees((W @ R.T)[:, 2]),
+        "yaw_gt": np.degrees((Wg @ R.T)[:, 2]),
         "yaw_prior": np.zeros(len(rows)),
-        "A_est": np.degrees(A), "A_gt": np.degrees(Ag),
+        "A_est": np.degrees(A),
+        "A_gt": np.degrees(Ag),
     }
 
 

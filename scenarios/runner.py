@@ -1,27 +1,92 @@
-"""`omnibench run`: render (or reuse) a drive, estimate ego-motion, measure it.
+"""`omnibench run`: render (or reuse) a drive, estimate ego-motion, detect and
+track vehicles, and measure everything against ground truth.
 
 Writes into ``out/``: ``drive/`` (the render, see sim.drive), ``egomotion.csv``,
-``ego_error.png`` and ``metrics.json`` (written last).
+``tracks.csv``, ``ego_error.png``, ``tracks.png``, ``surround.png`` (a still of
+the side-by-side panels), ``analysis.mp4`` (the side-by-side video),
+``report.html`` and ``metrics.json`` (written last).
 """
 
 from __future__ import annotations
 
+import csv
+import io as _io
 import json
+import time
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
+from estimator.baselines import make_estimator
 from estimator.camera_io import load_camera
-from estimator.fileio import write_json
-from estimator.pipeline import estimate_frames, write_egomotion_csv
+from estimator.detection import DetectorConfig
+from estimator.fileio import atomic_write, write_json, write_png, write_text
+from estimator.geometry import rot_z
+from estimator.homography import homography
+from estimator.pipeline import write_egomotion_csv
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
+from estimator.surround import SurroundAnalyzer
+from scenarios import visualize as viz
 from scenarios.config import Scenario
+from scenarios.detection_metrics import EvalFrame, GtVehicle, MetricsConfig, evaluate
 from scenarios.metrics import ego_metrics, ego_series, plot_ego_errors, read_egomotion_csv
+from scenarios.report import write_run_report
+from scenarios.road_residual import road_residuals
 from sim.drive import load_groundtruth, render_drive
 
+VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
+GATE_M = 1.5  # a detection matches a vehicle within this distance of its footprint [m]
 
-def run_scenario(scenario: Scenario, out_dir: Path, estimator: str = "direct",
-                 drive_dir: Path | None = None, progress: bool = True,
-                 max_frames: int | None = None) -> dict:
-    """Render (resuming), estimate and measure one scenario; returns metrics.json's content."""
+
+def ego_road_frame(gt_frame: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(R_world_ego (2, 2), origin (2,)) of the ego road frame of a GT record."""
+    T = np.asarray(gt_frame["T_world_cam_nominal"])
+    yaw = gt_frame["ego"]["yaw_rad"]
+    return rot_z(yaw)[:2, :2], T[:2, 3]
+
+
+def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicle], np.ndarray]:
+    """Vehicles visible (>= VISIBLE_PX_MIN px) within max_range_m, as footprints in the
+    ego road frame; also (N, 2) all their footprint centres (for drawing)."""
+    R, o = ego_road_frame(gt_frame)
+    out, centres = [], []
+    for v in gt_frame["vehicles"]:
+        box = np.asarray(v["box_world_m"])[:4, :2]  # bottom corners (sim.scene convention)
+        foot = (box - o) @ R  # R^T (p - o)
+        centres.append(foot.mean(axis=0))
+        if v["visible_px"] < VISIBLE_PX_MIN:
+            continue
+        if _polygon_distance(np.zeros(2), foot) > max_range_m:
+            continue
+        out.append(GtVehicle(int(v["id"]), _convex_order(foot)))
+    return out, np.array(centres).reshape(-1, 2)
+
+
+def _convex_order(pts: np.ndarray) -> np.ndarray:
+    c = pts.mean(axis=0)
+    ang = np.arctan2(pts[:, 1] - c[1], pts[:, 0] - c[0])
+    return pts[np.argsort(ang)]
+
+
+def _polygon_distance(p: np.ndarray, poly: np.ndarray) -> float:
+    from scenarios.detection_metrics import point_footprint_distance
+
+    return float(
+        np.asarray(point_footprint_distance(p.reshape(1, 2), _convex_order(poly))).ravel()[0]
+    )
+
+
+def run_scenario(
+    scenario: Scenario,
+    out_dir: Path,
+    estimator: str = "direct",
+    drive_dir: Path | None = None,
+    progress: bool = True,
+    max_frames: int | None = None,
+    video: bool = True,
+) -> dict:
+    """Render (resuming), estimate, detect, track and measure one scenario."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     drive_dir = Path(drive_dir) if drive_dir is not None else out_dir / "drive"
@@ -30,12 +95,74 @@ def run_scenario(scenario: Scenario, out_dir: Path, estimator: str = "direct",
     camera, mount = load_camera(drive_dir / "camera.yaml")
     times = read_timestamps_csv(drive_dir / "timestamps.csv")
     can = read_can_csv(drive_dir / "can.csv")
-    run = estimate_frames(iter_frames(drive_dir / "frames"), times, can, camera, mount,
-                          estimator=estimator, progress=progress)
-    write_egomotion_csv(out_dir / "egomotion.csv", run.records, mount)
+    det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
+    est = make_estimator(estimator, camera, mount)
+    surround = SurroundAnalyzer(camera, mount, det_cfg)
+    records, track_rows, eval_det, eval_trk = [], [], [], []
+    t_est, t_det = [], []
+    writer = _VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
+    still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
+    frames = iter_frames(drive_dir / "frames")
+    try:
+        for k, image in _progress(
+            enumerate(frames), len(gt), progress, f"analyse {scenario.name} ({estimator})"
+        ):
+            t = float(times[k])
+            t0 = time.perf_counter()
+            rec = est.step(image, t, can.at(t))
+            t1 = time.perf_counter()
+            sf = surround.step(k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps)
+            t2 = time.perf_counter()
+            if k > 0:
+                t_est.append(t1 - t0)
+                t_det.append(t2 - t1)
+            records.append(rec)
+            if sf is None:
+                continue
+            gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
+            dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
+            eval_det.append(EvalFrame(gt_set, dets, t))
+            eval_trk.append(
+                EvalFrame(gt_set, [(tr.id, float(tr.x[0]), float(tr.x[1])) for tr in sf.tracks], t)
+            )
+            for tr in sf.tracks:
+                track_rows.append(
+                    (k, t, tr.id, float(tr.x[0]), float(tr.x[1]), float(tr.x[2]), float(tr.x[3]))
+                )
+            if writer is not None or k == still_k:
+                panel = _panels(
+                    image,
+                    rec,
+                    sf,
+                    camera,
+                    mount,
+                    surround,
+                    np.array([g.footprint_xy.mean(axis=0) for g in gt_set]),
+                )
+                if writer is not None:
+                    writer.append(panel)
+                if k == still_k:
+                    write_png(out_dir / "surround.png", panel)
+    finally:
+        if writer is not None:
+            writer.close()
+    write_egomotion_csv(out_dir / "egomotion.csv", records, mount)
+    _write_tracks_csv(out_dir / "tracks.csv", track_rows)
     series = ego_series(read_egomotion_csv(out_dir / "egomotion.csv"), gt, mount)
-    plot_ego_errors(series, out_dir / "ego_error.png",
-                    title=f"{scenario.name} - {estimator}")
+    plot_ego_errors(series, out_dir / "ego_error.png", title=f"{scenario.name} - {estimator}")
+    viz.plot_tracks(track_rows, out_dir / "tracks.png", title=f"{scenario.name} - {estimator}")
+    est_H = {
+        r.frame: homography(np.asarray(r.x, float), mount.K0, r.dt_s)
+        for r in records
+        if r.dt_s > 0 and np.all(np.isfinite(r.x))
+    }
+    every = max(1, len(gt) // 20)  # ~20 frames are enough for a median
+    compensation = road_residuals(
+        drive_dir, camera, mount, gt, est_H, frames=list(range(1, len(gt), every))
+    )
+    mcfg = MetricsConfig(gate_m=GATE_M)
+    det_m = evaluate(eval_det, mcfg)
+    trk_m = evaluate(eval_trk, mcfg)
     manifest = json.loads((drive_dir / "manifest.json").read_text())
     metrics = {
         "scenario": scenario.name,
@@ -43,10 +170,85 @@ def run_scenario(scenario: Scenario, out_dir: Path, estimator: str = "direct",
         "estimator": estimator,
         "frames": drive.n_frames,
         "ego": ego_metrics(series),
+        "detection": det_m["detection"],
+        "tracking": trk_m["tracking"],
+        "localization": det_m["localization"],
+        "compensation": compensation,
+        "evaluation": {
+            "gate_m": GATE_M,
+            "visible_px_min": VISIBLE_PX_MIN,
+            "max_range_m": det_cfg.max_range_m,
+            "nan_reasons": {**det_m.get("nan_reasons", {}), **trk_m.get("nan_reasons", {})},
+        },
         "timing": {
             "render_ms_per_frame": manifest.get("render_ms_per_frame"),
-            "estimate_ms_per_frame": run.ms_per_frame,
+            "estimate_ms_per_frame": _median_ms(t_est),
+            "detect_track_ms_per_frame": _median_ms(t_det),
         },
     }
-    write_json(out_dir / "metrics.json", metrics)
+    write_run_report(out_dir, metrics)
+    write_json(out_dir / "metrics.json", metrics)  # last: its presence marks a finished run
     return metrics
+
+
+def _median_ms(ts: list[float]) -> float:
+    return 1000.0 * float(np.median(ts)) if ts else float("nan")
+
+
+def _panels(image, rec, sf, camera, mount, surround: SurroundAnalyzer, gt_xy) -> np.ndarray:
+    a = viz.motion_panel(image, rec, camera, mount.K0)
+    c = viz.difference_panel(sf.detection.normalized_difference, surround.detector.valid)
+    d = viz.detection_panel(image, sf)
+    e = viz.surround_panel(image, surround.detector.plan, sf.tracks, gt_xy)
+    return np.concatenate([a, c, d, e], axis=1)
+
+
+def _write_tracks_csv(path: Path, rows: list[tuple]) -> None:
+    buf = _io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps"])
+    for r in rows:
+        w.writerow([r[0], f"{r[1]:.4f}", r[2]] + [f"{v:.3f}" for v in r[3:]])
+    write_text(path, buf.getvalue())
+
+
+class _VideoWriter:
+    """mp4 written to a temp name and renamed on close (never half-written)."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        import imageio.v2 as imageio
+
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.stem}.partial.mp4")
+        self._w = imageio.get_writer(
+            self.tmp, fps=fps, codec="libx264", quality=7, macro_block_size=16, format="FFMPEG"
+        )
+        self.n = 0
+
+    def append(self, frame: np.ndarray) -> None:
+        self._w.append_data(frame)
+        self.n += 1
+
+    def close(self) -> None:
+        self._w.close()
+        if self.n:
+            atomic_write(self.path, lambda p: self.tmp.replace(p), suffix=".mp4")
+        self.tmp.unlink(missing_ok=True)
+
+
+def _progress(it, total: int, enabled: bool, label: str):
+    if not enabled:
+        yield from it
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    ) as bar:
+        task = bar.add_task(label, total=total)
+        for x in it:
+            yield x
+            bar.advance(task)

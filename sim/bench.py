@@ -10,16 +10,23 @@ from scenarios.config import Scenario
 from sim.drive import prepare_drive
 
 
-def bench_render(n_frames: int = 20, camera: str = "omni-far", vehicles: int = 30,
-                 warmup: int = 3) -> dict:
+def bench_render(
+    n_frames: int = 20, camera: str = "omni-far", vehicles: int = 30, warmup: int = 3
+) -> dict:
     """Median time to produce one frame (faces, ray map, ids, range, sensor), no disk I/O.
 
     Uses a highway-v0 drive with ``vehicles`` cars; returns frames_per_s, ms_per_frame.
     """
     total = n_frames + warmup
-    sc = Scenario(name="bench-render", env="highway-v0",
-                  env_config={"vehicles_count": vehicles, "lanes_count": 4}, seed=1,
-                  duration_s=total / 15.0 + 0.01, fps=15.0, camera=camera)
+    sc = Scenario(
+        name="bench-render",
+        env="highway-v0",
+        env_config={"vehicles_count": vehicles, "lanes_count": 4},
+        seed=1,
+        duration_s=total / 15.0 + 0.01,
+        fps=15.0,
+        camera=camera,
+    )
     drive = prepare_drive(sc)
     times = []
     try:
@@ -32,7 +39,13 @@ def bench_render(n_frames: int = 20, camera: str = "omni-far", vehicles: int = 3
         drive.close()
     ms = 1000.0 * float(np.median(times))
     n_visible = len(drive.frames[0].others)
-    return {"frames_per_s": 1000.0 / ms, "ms_per_frame": ms, "frames": len(times),
-            "width": drive.camera.width, "height": drive.camera.height,
-            "vehicles": n_visible, "faces": len(drive._renderer.lookup.faces) if drive._renderer
-            else None, "face_px": drive.face_px}
+    return {
+        "frames_per_s": 1000.0 / ms,
+        "ms_per_frame": ms,
+        "frames": len(times),
+        "width": drive.camera.width,
+        "height": drive.camera.height,
+        "vehicles": n_visible,
+        "faces": len(drive._renderer.lookup.faces) if drive._renderer else None,
+        "face_px": drive.face_px,
+    }

@@ -44,11 +44,13 @@ class Vibration:
         """(3,) rotation vector of the camera about the car axes (roll, pitch, 0) [rad]."""
         amp = np.radians(self.amplitude_deg)
         w = 2 * np.pi * self.frequency_hz
-        return np.array([
-            amp * np.sin(w * t_s + self.phase_roll_rad),
-            amp * np.sin(1.37 * w * t_s + self.phase_pitch_rad),
-            0.0,
-        ])
+        return np.array(
+            [
+                amp * np.sin(w * t_s + self.phase_roll_rad),
+                amp * np.sin(1.37 * w * t_s + self.phase_pitch_rad),
+                0.0,
+            ]
+        )
 
 
 def T_world_car(x_m: float, y_m: float, yaw_rad: float) -> np.ndarray:
@@ -68,8 +70,9 @@ class CameraPose:
     A_cam_rad: np.ndarray
 
 
-def camera_pose(T_world_car_: np.ndarray, mount: CameraMount, vibration: Vibration | None,
-                t_s: float) -> CameraPose:
+def camera_pose(
+    T_world_car_: np.ndarray, mount: CameraMount, vibration: Vibration | None, t_s: float
+) -> CameraPose:
     T_wn = T_world_car_ @ mount.T_car_cam
     A_car = vibration.angles_car_rad(t_s) if vibration is not None else np.zeros(3)
     A_cam = mount.R_car_cam.T @ A_car  # the same rotation vector, in camera axes

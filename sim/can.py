@@ -8,9 +8,15 @@ from __future__ import annotations
 import numpy as np
 
 
-def can_messages(t_s: np.ndarray, speed_mps: np.ndarray, rate_hz: float, speed_bias: float,
-                 speed_noise_mps: float, quantization_mps: float,
-                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def can_messages(
+    t_s: np.ndarray,
+    speed_mps: np.ndarray,
+    rate_hz: float,
+    speed_bias: float,
+    speed_noise_mps: float,
+    quantization_mps: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
     """CAN speed messages from the true speed.
 
     t_s, speed_mps: (N,) true speed samples (sorted times) [s], [m/s].

@@ -28,11 +28,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from estimator import fileio as io
 from estimator.camera import CameraModel
 from estimator.camera_io import resolve_camera, save_camera
 from estimator.mount import CameraMount
 from scenarios.config import Scenario
-from estimator import fileio as io
 from sim.camera_motion import (
     CameraPose,
     T_world_car,
@@ -114,8 +114,9 @@ def _black_copy(mesh):
     import trimesh
 
     m = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
-    m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=np.tile([0, 0, 0, 255],
-                                                                    (len(m.vertices), 1)))
+    m.visual = trimesh.visual.ColorVisuals(
+        m, vertex_colors=np.tile([0, 0, 0, 255], (len(m.vertices), 1))
+    )
     return m
 
 
@@ -134,16 +135,31 @@ def _vehicle_record(v, T_world_cam_nominal: np.ndarray, visible_px: int) -> dict
     T_cw = np.linalg.inv(T_world_cam_nominal)
     box_c = box_w @ T_cw[:3, :3].T + T_cw[:3, 3]
     return {
-        "id": v.id, "x_m": v.x_m, "y_m": v.y_m, "yaw_rad": v.yaw_rad, "speed_mps": v.speed_mps,
-        "yaw_rate_rps": v.yaw_rate_rps, "length_m": v.length_m, "width_m": v.width_m,
-        "height_m": v.height_m, "box_world_m": box_w.round(4), "box_cam_m": box_c.round(4),
+        "id": v.id,
+        "x_m": v.x_m,
+        "y_m": v.y_m,
+        "yaw_rad": v.yaw_rad,
+        "speed_mps": v.speed_mps,
+        "yaw_rate_rps": v.yaw_rate_rps,
+        "length_m": v.length_m,
+        "width_m": v.width_m,
+        "height_m": v.height_m,
+        "box_world_m": box_w.round(4),
+        "box_cam_m": box_c.round(4),
         "visible_px": int(visible_px),
     }
 
 
-def scene_flow_px(camera: CameraModel, rays: np.ndarray, range_m: np.ndarray, ids: np.ndarray,
-                  a: CameraPose, b: CameraPose, displacement_m: dict[int, np.ndarray],
-                  step: int = 4) -> np.ndarray:
+def scene_flow_px(
+    camera: CameraModel,
+    rays: np.ndarray,
+    range_m: np.ndarray,
+    ids: np.ndarray,
+    a: CameraPose,
+    b: CameraPose,
+    displacement_m: dict[int, np.ndarray],
+    step: int = 4,
+) -> np.ndarray:
     """(H, W, 2) image motion between poses a and b [px], for motion blur.
 
     Computed on every ``step``-th pixel and interpolated (the flow is smooth).
@@ -190,8 +206,11 @@ def imaged_mask(camera: CameraModel) -> np.ndarray:
 def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndarray]:
     """World displacement (3,) of every vehicle present in both frames [m]."""
     pos_b = {v.id: (v.x_m, v.y_m) for v in (f_b.ego, *f_b.others)}
-    return {v.id: np.array([pos_b[v.id][0] - v.x_m, pos_b[v.id][1] - v.y_m, 0.0])
-            for v in (f_a.ego, *f_a.others) if v.id in pos_b}
+    return {
+        v.id: np.array([pos_b[v.id][0] - v.x_m, pos_b[v.id][1] - v.y_m, 0.0])
+        for v in (f_a.ego, *f_a.others)
+        if v.id in pos_b
+    }
 
 
 @dataclass
@@ -210,25 +229,42 @@ class DriveRenderer:
     the cube-map renderer; `produce(k)` renders frame k with sensor effects.
     """
 
-    def __init__(self, scenario: Scenario, camera: CameraModel, mount: CameraMount,
-                 frames: list[WorldFrame], road, face_px: int | None = None) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        camera: CameraModel,
+        mount: CameraMount,
+        frames: list[WorldFrame],
+        road,
+        face_px: int | None = None,
+    ) -> None:
         self.scenario, self.camera, self.mount, self.frames = scenario, camera, mount, frames
         n = len(frames)
         rng_world = np.random.default_rng([scenario.seed, 0])
-        vib = Vibration.seeded(scenario.vibration.amplitude_deg,
-                               scenario.vibration.frequency_hz, rng_world)
-        self.poses = [camera_pose(T_world_car(f.ego.x_m, f.ego.y_m, f.ego.yaw_rad), mount, vib,
-                                  f.t_s) for f in frames]
+        vib = Vibration.seeded(
+            scenario.vibration.amplitude_deg, scenario.vibration.frequency_hz, rng_world
+        )
+        self.poses = [
+            camera_pose(T_world_car(f.ego.x_m, f.ego.y_m, f.ego.yaw_rad), mount, vib, f.t_s)
+            for f in frames
+        ]
         t = np.array([f.t_s for f in frames])
         speed = np.array([f.ego.speed_mps for f in frames])
         c = scenario.can
-        self.t_msg, self.v_msg = can_messages(t, speed, c.rate_hz, c.speed_bias,
-                                              c.speed_noise_mps, c.quantization_mps,
-                                              np.random.default_rng([scenario.seed, 2]))
+        self.t_msg, self.v_msg = can_messages(
+            t,
+            speed,
+            c.rate_hz,
+            c.speed_bias,
+            c.speed_noise_mps,
+            c.quantization_mps,
+            np.random.default_rng([scenario.seed, 2]),
+        )
         self.can_frame = can_at(t, self.t_msg, self.v_msg)
         self.sensor = SensorModel(**scenario.sensor.model_dump())
-        self.gains = gain_sequence(n, self.sensor.gain_drift,
-                                   np.random.default_rng([scenario.seed, 3]))
+        self.gains = gain_sequence(
+            n, self.sensor.gain_drift, np.random.default_rng([scenario.seed, 3])
+        )
         self.vignette = vignetting_gain((camera.height, camera.width), self.sensor.vignetting)
         self.road = road
         self.face_px = face_px or default_face_px(camera)
@@ -237,8 +273,9 @@ class DriveRenderer:
     def _open(self) -> OmniRenderer:
         if self._renderer is None:
             self._renderer = OmniRenderer(self.camera, self.face_px)
-            static, id_static = static_scene_for(self.frames, self.scenario, self.road,
-                                                 self.scenario.seed)
+            static, id_static = static_scene_for(
+                self.frames, self.scenario, self.road, self.scenario.seed
+            )
             self._scenes = WorldScenes(static, id_static)
             self._rays = self.camera.pixel_rays()
             self._mask = imaged_mask(self.camera)
@@ -260,33 +297,61 @@ class DriveRenderer:
         range_m = renderer.range_image(depth)
         flow = None
         if self.sensor.motion_blur and k + 1 < len(self.frames):
-            full = scene_flow_px(self.camera, self._rays, range_m, ids, pose, self.poses[k + 1],
-                                 vehicle_displacements(self.frames[k], self.frames[k + 1]))
+            full = scene_flow_px(
+                self.camera,
+                self._rays,
+                range_m,
+                ids,
+                pose,
+                self.poses[k + 1],
+                vehicle_displacements(self.frames[k], self.frames[k + 1]),
+            )
             flow = full * float(self.sensor.exposure_s * self.scenario.fps)
         rng = np.random.default_rng([self.scenario.seed, 4, k])
-        out = apply_sensor(image, self.sensor, rng, gain=float(self.gains[k]),
-                           vignette=self.vignette, flow_px=flow, mask=self._mask)
+        out = apply_sensor(
+            image,
+            self.sensor,
+            rng,
+            gain=float(self.gains[k]),
+            vignette=self.vignette,
+            flow_px=flow,
+            mask=self._mask,
+        )
         return FrameImages(out, ids, range_m)
 
     def groundtruth(self, k: int, ids: np.ndarray) -> dict:
         return frame_groundtruth(k, self.frames, self.poses, ids, self.can_frame)
 
 
-def prepare_drive(scenario: Scenario, max_frames: int | None = None,
-                  face_px: int | None = None) -> DriveRenderer:
+def prepare_drive(
+    scenario: Scenario, max_frames: int | None = None, face_px: int | None = None
+) -> DriveRenderer:
     """Simulate the scenario's traffic and set up its renderer."""
     camera, mount = resolve_camera(scenario.camera)
     n = scenario.n_frames if max_frames is None else min(scenario.n_frames, max_frames)
-    frames, road = simulate(scenario.env, scenario.env_config, scenario.seed, scenario.fps,
-                            n / scenario.fps, scenario.ego_policy, return_road=True)
+    frames, road = simulate(
+        scenario.env,
+        scenario.env_config,
+        scenario.seed,
+        scenario.fps,
+        n / scenario.fps,
+        scenario.ego_policy,
+        return_road=True,
+    )
     frames = frames[:n]
     if len(frames) < n:
         raise DriveError(f"simulation produced {len(frames)} frames, expected {n}")
     return DriveRenderer(scenario, camera, mount, frames, road, face_px)
 
 
-def render_drive(scenario: Scenario, out_dir: Path, *, progress: bool = True,
-                 face_px: int | None = None, max_frames: int | None = None) -> DriveResult:
+def render_drive(
+    scenario: Scenario,
+    out_dir: Path,
+    *,
+    progress: bool = True,
+    face_px: int | None = None,
+    max_frames: int | None = None,
+) -> DriveResult:
     """Simulate and render ``scenario`` into ``out_dir`` (resuming if possible)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -308,10 +373,15 @@ def render_drive(scenario: Scenario, out_dir: Path, *, progress: bool = True,
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)
-    io.write_text(out_dir / "can.csv", "t_s,speed_mps\n" + "".join(
-        f"{a:.4f},{b:.4f}\n" for a, b in zip(drive.t_msg, drive.v_msg, strict=True)))
-    io.write_text(out_dir / "timestamps.csv", "frame,t_s\n" + "".join(
-        f"{k},{f.t_s:.6f}\n" for k, f in enumerate(drive.frames)))
+    io.write_text(
+        out_dir / "can.csv",
+        "t_s,speed_mps\n"
+        + "".join(f"{a:.4f},{b:.4f}\n" for a, b in zip(drive.t_msg, drive.v_msg, strict=True)),
+    )
+    io.write_text(
+        out_dir / "timestamps.csv",
+        "frame,t_s\n" + "".join(f"{k},{f.t_s:.6f}\n" for k, f in enumerate(drive.frames)),
+    )
     todo = [k for k in range(n) if not (out_dir / "gt" / f"{frame_name(k)}.json").exists()]
     render_times: list[float] = []
     try:
@@ -341,16 +411,26 @@ def _read_manifest(out_dir: Path) -> dict:
         return {}
 
 
-def frame_groundtruth(k: int, frames: list[WorldFrame], poses: list[CameraPose],
-                      ids: np.ndarray, can_frame: np.ndarray) -> dict:
+def frame_groundtruth(
+    k: int,
+    frames: list[WorldFrame],
+    poses: list[CameraPose],
+    ids: np.ndarray,
+    can_frame: np.ndarray,
+) -> dict:
     """The ground-truth record of frame k (see module docstring of sim.drive)."""
     f, pose = frames[k], poses[k]
     counts = np.bincount(ids[ids >= 0].ravel(), minlength=1) if np.any(ids >= 0) else np.zeros(1)
     rec = {
         "frame": k,
         "t_s": f.t_s,
-        "ego": {"x_m": f.ego.x_m, "y_m": f.ego.y_m, "yaw_rad": f.ego.yaw_rad,
-                "speed_mps": f.ego.speed_mps, "yaw_rate_rps": f.ego.yaw_rate_rps},
+        "ego": {
+            "x_m": f.ego.x_m,
+            "y_m": f.ego.y_m,
+            "yaw_rad": f.ego.yaw_rad,
+            "speed_mps": f.ego.speed_mps,
+            "yaw_rate_rps": f.ego.yaw_rate_rps,
+        },
         "T_world_cam_nominal": pose.T_world_nominal.round(6),
         "T_world_cam_actual": pose.T_world_actual.round(6),
         "A_rad": pose.A_cam_rad,
@@ -363,31 +443,47 @@ def frame_groundtruth(k: int, frames: list[WorldFrame], poses: list[CameraPose],
     }
     if k > 0:
         m = motion_between(poses[k - 1], pose, f.t_s - frames[k - 1].t_s)
-        rec["motion_from_prev"] = {"V_mps": m.V_mps, "W_rps": m.W_rps, "A_rad": m.A_rad,
-                                   "H": m.H, "dt_s": m.dt_s}
+        rec["motion_from_prev"] = {
+            "V_mps": m.V_mps,
+            "W_rps": m.W_rps,
+            "A_rad": m.A_rad,
+            "H": m.H,
+            "dt_s": m.dt_s,
+        }
     return rec
 
 
 def _finalise(out_dir: Path, n: int, scenario: Scenario, render_ms: float) -> None:
     lines = [(out_dir / "gt" / f"{frame_name(k)}.json").read_text() for k in range(n)]
-    io.write_text(out_dir / "groundtruth.jsonl",
-                  "".join(json.dumps(json.loads(s)) + "\n" for s in lines))
-    write_video(out_dir / "drive.mp4", [out_dir / "frames" / f"{frame_name(k)}.png"
-                                        for k in range(n)], scenario.fps)
+    io.write_text(
+        out_dir / "groundtruth.jsonl", "".join(json.dumps(json.loads(s)) + "\n" for s in lines)
+    )
+    write_video(
+        out_dir / "drive.mp4",
+        [out_dir / "frames" / f"{frame_name(k)}.png" for k in range(n)],
+        scenario.fps,
+    )
     if not np.isfinite(render_ms):
         render_ms = _read_manifest(out_dir).get("render_ms_per_frame")
     # written last: a folder without a complete manifest is not a finished drive
-    io.write_json(out_dir / "manifest.json", {"complete": True, "frames": n,
-                                              "scenario": scenario.name,
-                                              "render_ms_per_frame": render_ms})
+    io.write_json(
+        out_dir / "manifest.json",
+        {
+            "complete": True,
+            "frames": n,
+            "scenario": scenario.name,
+            "render_ms_per_frame": render_ms,
+        },
+    )
 
 
 def write_video(path: Path, frame_paths: list[Path], fps: float) -> None:
     import imageio.v2 as imageio
 
     def _w(p: Path) -> None:
-        with imageio.get_writer(p, fps=fps, codec="libx264", quality=7, macro_block_size=16,
-                                format="FFMPEG") as w:
+        with imageio.get_writer(
+            p, fps=fps, codec="libx264", quality=7, macro_block_size=16, format="FFMPEG"
+        ) as w:
             for fp in frame_paths:
                 w.append_data(io.read_png(fp))
 
@@ -400,8 +496,12 @@ def _progress(items, enabled: bool, label: str):
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn()) as bar:
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    ) as bar:
         task = bar.add_task(label, total=len(items))
         for it in items:
             yield it

@@ -21,7 +21,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 import numpy as np  # noqa: E402
 
 if not hasattr(np, "infty"):
-    np.infty = np.inf  # pyrender 0.1.45 uses np.infty, removed in NumPy 2
+    np.inf = np.inf  # pyrender 0.1.45 uses np.infty, removed in NumPy 2
 
 import OpenGL.contextdata  # noqa: E402
 import pyrender  # noqa: E402
@@ -47,8 +47,9 @@ def _get_program(self, vertex_shader, fragment_shader, geometry_shader=None, def
         if len(paths) == 2:
             paths.append(None)
         vs, fs, gs = paths
-        self._program_cache[key] = ShaderProgram(vertex_shader=vs, fragment_shader=fs,
-                                                 geometry_shader=gs, defines=defines)
+        self._program_cache[key] = ShaderProgram(
+            vertex_shader=vs, fragment_shader=fs, geometry_shader=gs, defines=defines
+        )
     return self._program_cache[key]
 
 

@@ -70,6 +70,9 @@ EGO_POLICIES = ("idm", "keep-lane")
 
 #: Vehicle height range for cars [m]; each vehicle draws its height from it.
 HEIGHT_RANGE_M = (1.4, 1.7)
+#: The ego car's roof height [m]: the omni presets put the mirror's viewpoint
+#: 0.45 m above a 1.5 m roof (the paper's first test run).
+EGO_HEIGHT_M = 1.5
 
 #: Sample spacing along curved lanes [m] and the largest along straight lanes [m].
 CURVE_STEP_M = 1.0
@@ -714,6 +717,8 @@ class HighwayBridge:
 
     def _height(self, vid: int) -> float:
         h = self._heights.get(vid)
+        if h is None and vid == 0:
+            h = self._heights[vid] = EGO_HEIGHT_M
         if h is None:
             u = np.random.default_rng([self.seed, vid, 0x0B]).uniform()
             h = HEIGHT_RANGE_M[0] + (HEIGHT_RANGE_M[1] - HEIGHT_RANGE_M[0]) * float(u)

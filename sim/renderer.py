@@ -117,17 +117,26 @@ class OmniRenderer:
     colours encode vehicle ids (see `sim.scene`), rendered FLAT.
     """
 
-    def __init__(self, camera: CameraModel, face_px: int = 512, z_near: float = 0.05,
-                 z_far: float = 400.0, cache_body_faces: bool = True) -> None:
+    def __init__(
+        self,
+        camera: CameraModel,
+        face_px: int = 512,
+        z_near: float = 0.05,
+        z_far: float = 400.0,
+        cache_body_faces: bool = True,
+    ) -> None:
         """cache_body_faces: render the faces that only show the car body (which moves
-        with the camera) once, and reuse them for every frame."""
+        with the camera) once, at the first frame rendered, and reuse them. Those
+        pixels lie outside the valid field of view; a resumed render may differ there
+        (vibration, shading) from an uninterrupted one, never in the valid view."""
         self.camera = camera
         self.cache_body_faces = cache_body_faces
         self._face_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.lookup = CubeMapLookup.build(camera, face_px)
         fov = 2.0 * np.arctan((face_px / 2.0) / self.lookup.focal_px)
-        self._gl_camera = pyrender.PerspectiveCamera(yfov=fov, aspectRatio=1.0, znear=z_near,
-                                                     zfar=z_far)
+        self._gl_camera = pyrender.PerspectiveCamera(
+            yfov=fov, aspectRatio=1.0, znear=z_near, zfar=z_far
+        )
         self._renderer = pyrender.OffscreenRenderer(face_px, face_px)
         self._R_face = {n: face_rotation(n) for n in self.lookup.faces}
 
@@ -143,8 +152,13 @@ class OmniRenderer:
             poses.append(T)
         return poses
 
-    def render_atlas(self, scene: pyrender.Scene, T_world_cam: np.ndarray, flat: bool = False,
-                     depth: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    def render_atlas(
+        self,
+        scene: pyrender.Scene,
+        T_world_cam: np.ndarray,
+        flat: bool = False,
+        depth: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """Face atlas (n_faces * F, F, 3) uint8 and optionally depth (n_faces * F, F)."""
         node = scene.add(self._gl_camera, pose=np.eye(4))
         flags = pyrender.RenderFlags.FLAT if flat else pyrender.RenderFlags.NONE
@@ -173,8 +187,9 @@ class OmniRenderer:
 
     def remap_nearest(self, atlas: np.ndarray) -> np.ndarray:
         lk = self.lookup
-        return cv2.remap(atlas, lk.map_x, lk.map_y, cv2.INTER_NEAREST,
-                         borderMode=cv2.BORDER_CONSTANT)
+        return cv2.remap(
+            atlas, lk.map_x, lk.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT
+        )
 
     def range_image(self, depth_atlas: np.ndarray) -> np.ndarray:
         """(H, W) float32 range along each pixel's ray [m]; inf where nothing was hit."""

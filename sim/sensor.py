@@ -24,8 +24,9 @@ class SensorModel:
     jpeg_quality: int | None = None
 
 
-def vignetting_gain(shape: tuple[int, int], strength: float,
-                    centre: tuple[float, float] | None = None) -> np.ndarray:
+def vignetting_gain(
+    shape: tuple[int, int], strength: float, centre: tuple[float, float] | None = None
+) -> np.ndarray:
     """(H, W) float32 gain, 1 at the centre, 1 - strength at the farthest corner (cos^4-like)."""
     H, W = shape
     cu, cv = centre if centre is not None else ((W - 1) / 2, (H - 1) / 2)
@@ -62,9 +63,15 @@ def motion_blur(image: np.ndarray, flow_px: np.ndarray, samples: int = 5) -> np.
     return acc / samples
 
 
-def apply_sensor(image: np.ndarray, model: SensorModel, rng: np.random.Generator, gain: float = 1.0,
-                 vignette: np.ndarray | None = None, flow_px: np.ndarray | None = None,
-                 mask: np.ndarray | None = None) -> np.ndarray:
+def apply_sensor(
+    image: np.ndarray,
+    model: SensorModel,
+    rng: np.random.Generator,
+    gain: float = 1.0,
+    vignette: np.ndarray | None = None,
+    flow_px: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
     """Sensor effects on an (H, W, 3) uint8 RGB image; returns uint8.
 
     mask: (H, W) bool, pixels that have an image (others stay black).
@@ -82,7 +89,9 @@ def apply_sensor(image: np.ndarray, model: SensorModel, rng: np.random.Generator
     if mask is not None:
         out[~mask] = 0
     if model.jpeg_quality is not None:
-        ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, model.jpeg_quality])
+        ok, buf = cv2.imencode(
+            ".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, model.jpeg_quality]
+        )
         if not ok:
             raise RuntimeError("JPEG encoding failed")
         out = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()

@@ -37,8 +37,9 @@ def test_face_rotations_are_proper_and_look_along_their_axis():
 
 @pytest.mark.parametrize("preset", ["omni-near", "omni-far", "rectilinear-rear-left"])
 def test_lookup_maps_every_valid_pixel_inside_a_face(preset):
-    cam, _ = resolve_camera({"preset": preset, "width": 160, "height": 160 if "omni" in preset
-                             else 120})
+    cam, _ = resolve_camera(
+        {"preset": preset, "width": 160, "height": 160 if "omni" in preset else 120}
+    )
     lk = CubeMapLookup.build(cam, 64)
     v = cam.valid_mask()
     assert np.all(lk.map_x[v] >= 0.5) and np.all(lk.map_x[v] <= 63 - 0.5)
@@ -75,7 +76,8 @@ def test_rendered_box_silhouette_matches_camera_model(preset):
     import cv2
 
     edge = cv2.dilate(expected.astype(np.uint8), np.ones((3, 3))) != cv2.erode(
-        expected.astype(np.uint8), np.ones((3, 3)))
+        expected.astype(np.uint8), np.ones((3, 3))
+    )
     assert not np.any(mismatch & ~edge), f"{int((mismatch & ~edge).sum())} px off the edge"
     assert mismatch.sum() < 0.25 * edge[valid].sum()
     # range: the box's nearest face distance along the ray is right

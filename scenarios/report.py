@@ -1,0 +1,67 @@
+"""A static HTML page for one run: metrics, pictures and links to the videos.
+
+It opens from disk (relative links, no scripts, no network).
+"""
+
+from __future__ import annotations
+
+import html
+import math
+from pathlib import Path
+
+from estimator.fileio import write_text
+
+_CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1700px}
+table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px}
+th{background:#eee;text-align:left}img{max-width:100%;border:1px solid #ccc}
+.sec{margin-top:1.2em}"""
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.4g}"
+    return html.escape(str(v))
+
+
+def _table(section: dict) -> str:
+    rows = "".join(
+        f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>"
+        for k, v in section.items()
+        if not isinstance(v, dict | list)
+    )
+    return f"<table>{rows}</table>"
+
+
+def write_run_report(out_dir: Path, metrics: dict) -> Path:
+    """``out_dir/report.html`` for the run whose metrics.json content is ``metrics``."""
+    out_dir = Path(out_dir)
+    parts = [
+        f"<h1>omnibench: {html.escape(str(metrics.get('scenario')))}</h1>",
+        f"<p>camera <b>{_fmt(metrics.get('camera'))}</b>, estimator "
+        f"<b>{_fmt(metrics.get('estimator'))}</b>, {_fmt(metrics.get('frames'))} frames"
+        "</p>",
+    ]
+    for name in ("ego", "detection", "tracking", "localization", "compensation", "timing"):
+        if isinstance(metrics.get(name), dict):
+            parts.append(f"<div class=sec><h2>{name}</h2>{_table(metrics[name])}</div>")
+    for img, caption in (
+        ("surround.png", "side-by-side panels (paper Fig. 4)"),
+        ("ego_error.png", "ego-motion against ground truth and the CAN prior"),
+        ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
+    ):
+        if (out_dir / img).exists():
+            parts.append(f"<div class=sec><h2>{caption}</h2><img src='{img}' alt='{img}'></div>")
+    links = [
+        f"<a href='{v}'>{v}</a>"
+        for v in ("analysis.mp4", "drive/drive.mp4", "metrics.json", "egomotion.csv", "tracks.csv")
+        if (out_dir / v).exists()
+    ]
+    parts.append("<div class=sec><h2>files</h2><p>" + " · ".join(links) + "</p></div>")
+    page = (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>omnibench "
+        f"{html.escape(str(metrics.get('scenario')))}</title><style>{_CSS}</style></head>"
+        f"<body>{''.join(parts)}</body></html>\n"
+    )
+    path = out_dir / "report.html"
+    write_text(path, page)
+    return path

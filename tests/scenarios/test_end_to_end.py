@@ -1,0 +1,64 @@
+"""One real end-to-end run: `omnibench run` on a short drive (render, estimate,
+detect, track, metrics, pictures)."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+SCENARIO = {
+    "name": "e2e-highway",
+    "env": "highway-v0",
+    "env_config": {"vehicles_count": 20, "lanes_count": 3},
+    "seed": 7,
+    "duration_s": 1.6,
+    "fps": 15,
+    "camera": {"preset": "omni-near", "width": 320, "height": 320},
+    "can": {"speed_bias": 0.08, "speed_noise_mps": 0.3},
+}
+
+
+@pytest.mark.e2e
+def test_omnibench_run_end_to_end(tmp_path: Path):
+    sc = tmp_path / "e2e.yaml"
+    sc.write_text(yaml.safe_dump(SCENARIO))
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "scenarios", "run", str(sc), "--out", str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frames"] == 24
+    for key in ("speed_rmse_mps", "speed_rmse_pct", "yaw_rate_rmse_dps", "angle_rmse_deg",
+                "prior_speed_rmse_mps", "prior_yaw_rate_rmse_dps"):
+        assert math.isfinite(m["ego"][key]), key
+    # the CAN prior is 8 % off: the images must pull the speed towards the truth
+    assert m["ego"]["speed_rmse_mps"] < m["ego"]["prior_speed_rmse_mps"]
+    assert set(m["detection"]) >= {"recall", "precision", "gt_count", "matched"}
+    assert set(m["tracking"]) >= {"mota", "idf1", "hota", "id_switches"}
+    assert set(m["localization"]) >= {"median_error_m", "p90_error_m"}
+    for key in ("render_ms_per_frame", "estimate_ms_per_frame", "detect_track_ms_per_frame"):
+        assert m["timing"][key] > 0
+    for name in ("egomotion.csv", "tracks.csv", "ego_error.png", "tracks.png", "surround.png",
+                 "analysis.mp4", "report.html", "drive/drive.mp4", "drive/groundtruth.jsonl"):
+        assert (out / name).stat().st_size > 0, name
+    rows = (out / "egomotion.csv").read_text().splitlines()
+    assert len(rows) == 25 and rows[0].startswith("frame,t_s,V_x")
+    # a second run reuses the render: no frame is written again
+    stamp = (out / "drive" / "frames" / "000010.png").stat().st_mtime_ns
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert (out / "drive" / "frames" / "000010.png").stat().st_mtime_ns == stamp
+
+
+def test_run_reports_bad_scenario_clearly(tmp_path: Path):
+    sc = tmp_path / "bad.yaml"
+    sc.write_text("name: x\nfps: fast\n")
+    proc = subprocess.run([sys.executable, "-m", "scenarios", "run", str(sc), "--out",
+                           str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "fps" in proc.stderr and "bad.yaml" in proc.stderr
+    assert not (tmp_path / "o" / "metrics.json").exists()

@@ -1,0 +1,134 @@
+"""A tiny real drive: highway-env -> pyrender/OSMesa -> omni frames + ground truth."""
+
+import json
+
+import numpy as np
+import pytest
+
+from estimator.camera_io import load_camera
+from estimator.fileio import read_png
+from scenarios.config import scenario_from_dict
+from sim import drive as drive_mod
+from sim.drive import DriveError, load_groundtruth, render_drive
+
+N = 6
+
+
+def tiny(**over):
+    d = {
+        "name": "tiny",
+        "env": "highway-v0",
+        "env_config": {"vehicles_count": 15, "lanes_count": 3},
+        "seed": 3,
+        "duration_s": N / 15,
+        "fps": 15,
+        "camera": {"preset": "omni-near", "width": 200, "height": 200},
+        "sensor": {"noise_std": 0, "motion_blur": False, "jpeg_quality": None,
+                   "gain_drift": 0, "vignetting": 0},
+    }
+    d.update(over)
+    return scenario_from_dict(d)
+
+
+@pytest.fixture(scope="module")
+def drive_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("drive")
+    res = render_drive(tiny(), out, progress=False)
+    assert res.n_frames == N and res.rendered == N
+    return out
+
+
+def test_outputs_complete(drive_dir):
+    for name in ("drive.mp4", "camera.yaml", "scenario.yaml", "can.csv", "timestamps.csv",
+                 "groundtruth.jsonl", "manifest.json"):
+        assert (drive_dir / name).stat().st_size > 0, name
+    gt = load_groundtruth(drive_dir)
+    assert [g["frame"] for g in gt] == list(range(N))
+    assert gt[0]["motion_from_prev"] is None and gt[1]["motion_from_prev"] is not None
+    img = read_png(drive_dir / "frames" / "000003.png")
+    assert img.shape == (200, 200, 3) and img.dtype == np.uint8
+    assert read_png(drive_dir / "ids" / "000003.png").dtype == np.uint16
+    # outside the mirror's image circle is black, the road ring is not
+    assert img[0, 0].max() == 0 and img[100, 190].max() > 0 or img[190, 100].max() > 0
+    assert not list(drive_dir.rglob(".*.png")), "temp files left behind"
+
+
+def test_vehicles_land_on_their_id_pixels(drive_dir):
+    """Known 3-D points (vehicle box corners) projected with the camera model bound the
+    vehicle's pixels in the rendered id image, within 1 px."""
+    cam, _ = load_camera(drive_dir / "camera.yaml")
+    checked = 0
+    for g in load_groundtruth(drive_dir):
+        ids = read_png(drive_dir / "ids" / f"{g['frame']:06d}.png").astype(int) - 1
+        T_cw = np.linalg.inv(np.asarray(g["T_world_cam_actual"]))
+        for v in g["vehicles"]:
+            if v["visible_px"] < 20:
+                continue
+            P = np.asarray(v["box_world_m"]) @ T_cw[:3, :3].T + T_cw[:3, 3]
+            w = cam.project(P)
+            if not np.all(np.isfinite(w)):
+                continue
+            vv, uu = np.nonzero(ids == v["id"])
+            assert uu.min() >= w[:, 0].min() - 1 and uu.max() <= w[:, 0].max() + 1
+            assert vv.min() >= w[:, 1].min() - 1 and vv.max() <= w[:, 1].max() + 1
+            assert v["visible_px"] == len(uu)
+            checked += 1
+    assert checked > 0, "no vehicle in view: pick another seed"
+
+
+def test_ground_truth_homography_aligns_the_road(drive_dir):
+    from scenarios.road_residual import road_residuals
+
+    cam, mount = load_camera(drive_dir / "camera.yaml")
+    gt = load_groundtruth(drive_dir)
+    Hs = {k: np.asarray(gt[k]["motion_from_prev"]["H"]) for k in range(1, N)}
+    r = road_residuals(drive_dir, cam, mount, gt, Hs)
+    assert r["frames"] >= 3
+    assert r["road_median_abs_gt"] < 0.5 * r["uncompensated_median_abs"]
+    assert r["road_rms_gt"] < r["uncompensated_rms"]
+
+
+def test_rerun_resumes_and_reproduces(drive_dir, tmp_path):
+    import shutil
+
+    copy = tmp_path / "d"
+    shutil.copytree(drive_dir, copy)
+    before = read_png(copy / "frames" / "000004.png")
+    (copy / "gt" / "000004.json").unlink()  # frame 4 was interrupted
+    (copy / "manifest.json").unlink()
+    res = render_drive(tiny(), copy, progress=False)
+    assert res.rendered == 1
+    # every pixel of the field of view is reproduced exactly; the car-body disc is
+    # rendered once per session (OmniRenderer.cache_body_faces) and may differ slightly
+    cam, _ = load_camera(copy / "camera.yaml")
+    valid = cam.valid_mask()
+    assert np.array_equal(read_png(copy / "frames" / "000004.png")[valid], before[valid])
+    assert json.loads((copy / "manifest.json").read_text())["complete"]
+
+
+def test_interrupted_render_is_not_complete_and_resumes(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    real = drive_mod.DriveRenderer.produce
+
+    def flaky(self, k):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(self, k)
+
+    monkeypatch.setattr(drive_mod.DriveRenderer, "produce", flaky)
+    sc = tiny(duration_s=4 / 15)
+    with pytest.raises(KeyboardInterrupt):
+        render_drive(sc, tmp_path, progress=False)
+    assert not (tmp_path / "manifest.json").exists()
+    with pytest.raises(DriveError, match="not a complete drive"):
+        load_groundtruth(tmp_path)
+    assert len(list((tmp_path / "gt").glob("*.json"))) == 2
+    monkeypatch.setattr(drive_mod.DriveRenderer, "produce", real)
+    res = render_drive(sc, tmp_path, progress=False)
+    assert res.rendered == 2 and len(load_groundtruth(tmp_path)) == 4
+
+
+def test_other_scenario_in_same_folder_is_refused(drive_dir):
+    with pytest.raises(DriveError, match="different scenario"):
+        render_drive(tiny(seed=4), drive_dir, progress=False)
