@@ -19,7 +19,7 @@ app = typer.Typer(
 )
 bench_app = typer.Typer(no_args_is_help=True, help="Speed benchmarks (median ms or frames/s).")
 app.add_typer(bench_app, name="bench")
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # no hard wraps inside error messages
 
 
 def _fail(msg: str) -> None:
@@ -149,7 +149,7 @@ def run(
 @app.command()
 def estimate(
     video: Path = typer.Argument(..., help="video file or folder of frames"),
-    camera: Path = typer.Option(..., help="camera YAML (intrinsics + mount)"),
+    camera: str = typer.Option(..., help="camera YAML (intrinsics + mount) or a preset name"),
     can: Path = typer.Option(..., help="CAN CSV with columns t_s,speed_mps"),
     out: Path = typer.Option(..., "--out", help="output folder"),
     estimator: str = typer.Option("direct", help="direct | can-only | features"),
@@ -189,3 +189,49 @@ def estimate(
     console.print(
         f"{len(run.records)} frames, {run.ms_per_frame:.1f} ms/frame -> {out}/egomotion.csv"
     )
+
+
+def _one_core() -> None:
+    """Pin this process to one CPU core (the speed targets are per core)."""
+    try:
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    except (AttributeError, OSError):
+        pass
+
+
+@bench_app.command("estimate")
+def bench_estimate(
+    frames: int = typer.Option(30, help="frames to time after warm-up"),
+    camera: str = typer.Option("omni-near", help="camera preset"),
+    as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
+) -> None:
+    """Median ms per frame of the direct estimator on one core (synthetic road frames)."""
+    from estimator.bench import bench_direct
+
+    _one_core()
+    res = bench_direct(camera_name=camera, n_frames=frames)
+    console.print(
+        f"estimate (direct, {camera}): {res['ms_per_frame']:.1f} ms/frame median "
+        f"over {res.get('frames', frames)} frames on one core"
+    )
+    if as_json:
+        print(json.dumps(res))
+
+
+@bench_app.command("detect")
+def bench_detect_cmd(
+    frames: int = typer.Option(30, help="frames to time"),
+    camera: str = typer.Option("omni-near", help="camera preset"),
+    as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
+) -> None:
+    """Median ms per frame of detection + tracking on one core (a rendered highway drive)."""
+    from scenarios.benchmarks import bench_detect
+
+    _one_core()
+    res = bench_detect(camera=camera, n_frames=frames)
+    console.print(
+        f"detect+track ({camera}): {res['ms_per_frame']:.1f} ms/frame median over "
+        f"{res['frames']} frames on one core"
+    )
+    if as_json:
+        print(json.dumps(res))

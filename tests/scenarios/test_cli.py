@@ -1,0 +1,76 @@
+"""The omnibench command line: calibrate and estimate with good and bad inputs."""
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from estimator.camera_io import load_camera
+
+
+def omnibench(*args: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "scenarios", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def _points_csv(path: Path, noise_px: float = 0.5) -> None:
+    cam, _ = load_camera("omni-near")
+    rng = np.random.default_rng(11)
+    # ground points around a tripod 1.95 m high, and a vertical pole: Z down the axis
+    ang = rng.uniform(0, 2 * np.pi, 300)
+    dist = rng.uniform(7.5, 40.0, 300)
+    ground = np.c_[dist * np.cos(ang), dist * np.sin(ang), np.full(300, 1.95)]
+    h = rng.uniform(0.0, 1.95, 60)
+    pole = np.c_[np.full(60, 6.0), np.zeros(60), 1.95 - h]
+    P = np.vstack([ground, pole])
+    P = P[cam.valid_rays(P)]
+    w = cam.project(P) + rng.normal(0, noise_px, (len(P), 2))
+    with open(path, "w", newline="") as fh:
+        wr = csv.writer(fh)
+        wr.writerow(["X", "Y", "Z", "u", "v"])
+        wr.writerows(np.c_[P, w].round(5).tolist())
+
+
+def test_calibrate_writes_a_camera_and_prints_residuals(tmp_path):
+    pts = tmp_path / "pts.csv"
+    _points_csv(pts)
+    out = tmp_path / "camera.yaml"
+    proc = omnibench("calibrate", str(pts), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "rms" in (proc.stdout + proc.stderr).lower()
+    cam, _ = load_camera(out)
+    ref, _ = load_camera("omni-near")
+    assert abs(cam.fu / ref.fu - 1) < 0.02
+
+
+def test_calibrate_bad_inputs(tmp_path):
+    missing = omnibench("calibrate", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "c.yaml"))
+    assert missing.returncode == 2 and "nope.csv" in missing.stderr
+    bad = tmp_path / "bad.csv"
+    bad.write_text("X,Y,u,v\n1,2,3,4\n")
+    proc = omnibench("calibrate", str(bad), "--out", str(tmp_path / "c.yaml"))
+    assert proc.returncode == 2 and "Z" in proc.stderr
+    assert not (tmp_path / "c.yaml").exists()
+
+
+def test_estimate_bad_inputs_are_named(tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    can = tmp_path / "can.csv"
+    can.write_text("t_s,speed_mps\n0,20\n0.1,nan_or_junk\n")
+    proc = omnibench("estimate", str(frames), "--camera", "omni-near", "--can", str(can),
+                     "--out", str(tmp_path / "o"), "--fps", "15")
+    assert proc.returncode == 2 and "can.csv" in proc.stderr and "row 3" in proc.stderr
+    can.write_text("time,v\n0,20\n")
+    proc = omnibench("estimate", str(frames), "--camera", "omni-near", "--can", str(can),
+                     "--out", str(tmp_path / "o"), "--fps", "15")
+    assert proc.returncode == 2 and "t_s" in proc.stderr
+    can.write_text("t_s,speed_mps\n0,20\n")
+    proc = omnibench("estimate", str(frames), "--camera", "omni-near", "--can", str(can),
+                     "--out", str(tmp_path / "o"), "--fps", "15")
+    assert proc.returncode == 2 and "no PNG/JPEG frames" in proc.stderr
+    proc = omnibench("estimate", str(tmp_path / "video.mp4"), "--camera", "nocam",
+                     "--can", str(can), "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2 and "nocam" in proc.stderr
