@@ -17,6 +17,10 @@ import numpy as np
 import yaml
 
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
 def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str | None = None) -> None:
     """Call ``writer(tmp_path)`` then rename tmp_path to ``path``."""
     path = Path(path)
@@ -27,6 +31,7 @@ def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str | None 
     os.close(fd)
     try:
         writer(Path(tmp))
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs are for everyone
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
