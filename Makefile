@@ -5,12 +5,12 @@ STAMP  := $(VENV)/.installed
 SCENARIO ?= highway-omni-near
 export PYOPENGL_PLATFORM := osmesa
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test test-deps bench clean
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml Makefile
-	@dpkg -s libosmesa6 >/dev/null 2>&1 || { apt-get update && apt-get install -y libosmesa6; }
+	@dpkg -s libosmesa6 >/dev/null 2>&1 || { apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y libosmesa6; }
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[dev]"
@@ -22,7 +22,11 @@ $(STAMP): pyproject.toml Makefile
 demo: $(STAMP)
 	$(VENV)/bin/omnibench run $(SCENARIO) --out renders/demo
 
-test: $(STAMP)
+# headless Chromium opens the HTML reports in the tests
+test-deps:
+	@command -v chromium >/dev/null 2>&1 || { apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; }
+
+test: $(STAMP) test-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -q

@@ -111,7 +111,17 @@ def bench_render(
         print(json.dumps(res))
 
 
+def _register_extensions() -> None:
+    """Commands that live in their own modules (suites, history, baselines)."""
+    import importlib
+    import importlib.util
+
+    if importlib.util.find_spec("scenarios.cli_suite") is not None:
+        importlib.import_module("scenarios.cli_suite").register(app)
+
+
 def main() -> None:
+    _register_extensions()
     try:
         app()
     except KeyboardInterrupt:
