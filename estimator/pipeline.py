@@ -12,7 +12,7 @@ import csv
 import io as _io
 import math
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +21,7 @@ import numpy as np
 from estimator.camera import CameraModel
 from estimator.fileio import write_text
 from estimator.mount import CameraMount
+from estimator.progress import track
 from estimator.recording import CanTrack
 
 HEADER = (
@@ -83,10 +84,7 @@ def estimate_frames(
 
     est = make_estimator(estimator, camera, mount, **config)
     records, times = [], []
-    it: Iterator = enumerate(frames)
-    if progress:
-        it = _progress(it, len(times_s), f"estimate ({estimator})")
-    for k, img in it:
+    for k, img in track(enumerate(frames), len(times_s), f"estimate ({estimator})", progress):
         if k >= len(times_s):
             raise ValueError(f"more frames than timestamps ({len(times_s)})")
         t0 = time.perf_counter()
@@ -97,18 +95,3 @@ def estimate_frames(
         records.append(rec)
     ms = 1000.0 * float(np.median(times[1:])) if len(times) > 1 else float("nan")
     return EstimateRun(records, ms)
-
-
-def _progress(it, total: int, label: str):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-    ) as bar:
-        task = bar.add_task(label, total=total)
-        for x in it:
-            yield x
-            bar.advance(task)

@@ -25,6 +25,7 @@ from estimator.fileio import atomic_write, write_json, write_png, write_text
 from estimator.geometry import rot_z
 from estimator.homography import homography
 from estimator.pipeline import write_egomotion_csv
+from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
 from estimator.surround import SurroundAnalyzer
 from scenarios import visualize as viz
@@ -104,8 +105,8 @@ def run_scenario(
     still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
     frames = iter_frames(drive_dir / "frames")
     try:
-        for k, image in _progress(
-            enumerate(frames), len(gt), progress, f"analyse {scenario.name} ({estimator})"
+        for k, image in track(
+            enumerate(frames), len(gt), f"analyse {scenario.name} ({estimator})", progress
         ):
             t = float(times[k])
             t0 = time.perf_counter()
@@ -234,21 +235,3 @@ class _VideoWriter:
         if self.n:
             atomic_write(self.path, lambda p: self.tmp.replace(p), suffix=".mp4")
         self.tmp.unlink(missing_ok=True)
-
-
-def _progress(it, total: int, enabled: bool, label: str):
-    if not enabled:
-        yield from it
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-    ) as bar:
-        task = bar.add_task(label, total=total)
-        for x in it:
-            yield x
-            bar.advance(task)

@@ -32,6 +32,7 @@ from estimator import fileio as io
 from estimator.camera import CameraModel
 from estimator.camera_io import resolve_camera, save_camera
 from estimator.mount import CameraMount
+from estimator.progress import track
 from scenarios.config import Scenario
 from sim.camera_motion import (
     CameraPose,
@@ -385,7 +386,7 @@ def render_drive(
     todo = [k for k in range(n) if not (out_dir / "gt" / f"{frame_name(k)}.json").exists()]
     render_times: list[float] = []
     try:
-        for k in _progress(todo, progress, f"render {scenario.name}"):
+        for k in track(todo, len(todo), f"render {scenario.name}", progress):
             t0 = time.perf_counter()
             fr = drive.produce(k)
             name = frame_name(k)
@@ -488,24 +489,6 @@ def write_video(path: Path, frame_paths: list[Path], fps: float) -> None:
                 w.append_data(io.read_png(fp))
 
     io.atomic_write(path, _w, suffix=".mp4")
-
-
-def _progress(items, enabled: bool, label: str):
-    if not enabled:
-        yield from items
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-    with Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-    ) as bar:
-        task = bar.add_task(label, total=len(items))
-        for it in items:
-            yield it
-            bar.advance(task)
 
 
 def load_groundtruth(drive_dir: Path) -> list[dict]:
