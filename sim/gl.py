@@ -62,10 +62,13 @@ __all__ = ["pyrender"]
 # degrees below the horizon); isotropic trilinear mipmapping then blurs the
 # asphalt to a smear whose blur changes from frame to frame with the viewing
 # angle, which breaks the brightness constancy the estimator relies on.
-# llvmpipe implements GL_EXT_texture_filter_anisotropic (up to 16x).
+# llvmpipe implements GL_EXT_texture_filter_anisotropic (up to 16x). Its cost
+# on Mesa 22.3's llvmpipe can jump to seconds per frame for some tilted views
+# (seen with a rolled camera over a large textured ground plane):
+# OMNIBENCH_ANISOTROPY=1 turns it off (trilinear only), e.g. to compare speed.
 _GL_TEXTURE_MAX_ANISOTROPY = 0x84FE
 _GL_MAX_TEXTURE_MAX_ANISOTROPY = 0x84FF
-MAX_ANISOTROPY = 16.0
+MAX_ANISOTROPY = float(os.environ.get("OMNIBENCH_ANISOTROPY", "16"))
 
 _original_add_to_context = pyrender.texture.Texture._add_to_context
 
@@ -74,7 +77,7 @@ def _add_to_context_anisotropic(self) -> None:
     from OpenGL import GL
 
     _original_add_to_context(self)
-    if self.source is None:
+    if self.source is None or MAX_ANISOTROPY <= 1.0:
         return
     try:
         limit = float(GL.glGetFloatv(_GL_MAX_TEXTURE_MAX_ANISOTROPY))
