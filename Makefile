@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml Makefile
 	@dpkg -s libosmesa6 >/dev/null 2>&1 || { apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y libosmesa6; }
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e ".[dev,ray]"
 	# pyrender 0.1.45 pins PyOpenGL==3.1.0, whose OSMesa binding lacks
 	# OSMesaCreateContextAttribs: install a working PyOpenGL over it (NOTES.md).
 	$(PY) -m pip install --quiet "PyOpenGL==3.1.10"

@@ -367,11 +367,11 @@ def render_drive(
                 f"{out_dir} holds a render of a different scenario ({previous.get('name')!r}); "
                 "use another --out folder or delete it"
             )
-    drive = prepare_drive(scenario, max_frames, face_px)
-    n = len(drive.frames)
+    n = scenario.n_frames if max_frames is None else min(scenario.n_frames, max_frames)
     manifest = _read_manifest(out_dir)
-    if manifest.get("complete") and manifest.get("frames") == n:
+    if manifest.get("complete") and manifest.get("frames") == n:  # nothing to simulate either
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
+    drive = prepare_drive(scenario, max_frames, face_px)
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)
     io.write_text(
