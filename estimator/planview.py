@@ -86,3 +86,16 @@ class PlanView:
         col = (self.range_m - xy[:, 1]) / self.m_per_px - 0.5
         row = (self.range_m - xy[:, 0]) / self.m_per_px - 0.5
         return np.stack([col, row], axis=-1)
+
+
+def pixel_road_xy(camera: CameraModel, mount: CameraMount) -> np.ndarray:
+    """(H, W, 2) float32 road point (x fwd, y left) [m] in the ego road frame of each
+    pixel's ray (inverse perspective); NaN where the ray does not meet the road."""
+    rays = camera.unproject(camera.pixel_grid().reshape(-1, 2))  # float64: far points
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = rays @ np.asarray(mount.K0, float)  # K0^T P: 1 on the road
+        P = rays / s[:, None]
+    p_car = P @ mount.R_car_cam.T + np.asarray(mount.position_m)
+    xy = p_car[:, :2] - np.asarray(mount.position_m[:2])
+    xy[~(s > 0) | ~camera.valid_rays(rays)] = np.nan
+    return xy.reshape(camera.height, camera.width, 2).astype(np.float32)

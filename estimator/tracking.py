@@ -47,6 +47,16 @@ Symbols, per track:
 - ``K = P⁻ Hᵀ S⁻¹``: gain; ``x = x⁻ + K ν``; ``P = (I - K H) P⁻ (I - K H)ᵀ + K R Kᵀ``
   (Joseph form, symmetric and positive for any K).
 
+Detections with a hidden ground point. Where the ground under a vehicle is
+hidden (the omni camera's car-body mask), the detector measures the bearing
+``β`` of the vehicle well but not its range: it only knows the point is inside
+the hidden region, and reports it at an assumed range ``r0`` on that bearing.
+Such a detection (``bearing_only``) is a position measurement whose covariance
+is elongated along the bearing: std ``hidden_range_sigma_m`` along it, ``r0
+σ_β`` across (`TrackerConfig.bearing_sigma_rad`), i.e. ``R = σ_a² u uᵀ + σ_c² v
+vᵀ`` with u the unit bearing and v ⟂ u; association, update and births then
+follow the linear filter above with that R.
+
 Per frame (`Tracker.step`): change of frame and prediction of every track;
 cost matrix ``d²`` with a gate (``d² > gate_chi2`` or ``|ν| > gate_m``: never
 assigned); assignment by `scipy.optimize.linear_sum_assignment`; update of
@@ -85,7 +95,8 @@ class TrackerConfig:
     ego_yaw_rate_sigma_rps: float = 0.01  # [rad/s] std of the ego yaw-rate input
     # measurements
     meas_sigma_m: float = 0.3  # [m] σ0: detection noise std at the camera
-    meas_sigma_per_m: float = 0.02  # [m/m] σ1: added std per metre of range
+    meas_sigma_per_m: float = 0.05  # [m/m] σ1: added std per metre of range (omni: ~1 px
+    # of radial error is ~0.6 m at 17 m)
     # births: vehicles around a moving car mostly move with it (the paper's
     # detector finds independently moving vehicles), so the ground velocity
     # prior is the ego velocity, with a wide std
@@ -94,6 +105,9 @@ class TrackerConfig:
     # gating: a pair beyond either gate is never assigned
     gate_chi2: float = 9.21  # [-] on d² (chi², 2 dof: 9.21 = 99 %)
     gate_m: float | None = 4.0  # [m] on |ν|; None: no metric gate
+    # bearing-only detections (ground hidden)
+    bearing_sigma_rad: float = 0.05  # [rad] σ_β: std of a hidden detection's bearing
+    hidden_range_sigma_m: float = 2.0  # [m] σ_a: its std along the bearing (range unknown)
     # track management
     confirm_hits: int = 3  # [frames] M: hits needed ...
     confirm_window: int = 4  # [frames] N: ... within the first N frames of a track
@@ -102,7 +116,14 @@ class TrackerConfig:
     max_records: int | None = None  # [-] StepRecords kept (oldest dropped); None: all
 
     def __post_init__(self) -> None:
-        positive = ("accel_psd_m2ps3", "meas_sigma_m", "init_velocity_sigma_mps", "gate_chi2")
+        positive = (
+            "accel_psd_m2ps3",
+            "meas_sigma_m",
+            "init_velocity_sigma_mps",
+            "gate_chi2",
+            "bearing_sigma_rad",
+            "hidden_range_sigma_m",
+        )
         for name in positive:
             check_positive(f"TrackerConfig.{name}", getattr(self, name))
         for name in ("ego_speed_sigma_mps", "ego_yaw_rate_sigma_rps", "meas_sigma_per_m"):
@@ -407,6 +428,14 @@ class Tracker:
         track.P = 0.5 * (track.P + track.P.T)
         return nu
 
+    def _hidden_cov(self, z: np.ndarray) -> np.ndarray:
+        """(2, 2) R of a detection at z whose ground point is hidden (module docstring)."""
+        r = max(float(np.hypot(*z)), 1e-3)
+        u = z / r
+        v = np.array([-u[1], u[0]])
+        along, across = self.config.hidden_range_sigma_m, r * self.config.bearing_sigma_rad
+        return along**2 * np.outer(u, u) + across**2 * np.outer(v, v)
+
     def _birth(self, z: np.ndarray, R: np.ndarray, s: float, u: float, extra: Any) -> Track:
         cfg = self.config
         v0 = np.array([s, u]) if cfg.init_velocity_from_ego else np.zeros(2)
@@ -427,6 +456,7 @@ class Tracker:
         *,
         extras: Sequence[Any] | None = None,
         ego_lateral_speed_mps: float = 0.0,
+        bearing_only: Sequence[bool] | None = None,
     ) -> list[Track]:
         """Process one frame; return the confirmed tracks after the update, by id.
 
@@ -435,8 +465,10 @@ class Tracker:
         ego_yaw_rate_rps (and ego_lateral_speed_mps): motion of the ego road frame
         from the previous frame to this one [m/s], [rad/s] (ignored on the first
         frame). extras: optional per-detection info (length N), kept on the track
-        it updates or creates. Returned tracks include confirmed tracks that
-        missed this frame (``misses > 0``: coasting on their prediction).
+        it updates or creates. bearing_only: optional (N,) flags: that detection's
+        ground point is hidden, its range is uncertain (module docstring).
+        Returned tracks include confirmed tracks that missed this frame
+        (``misses > 0``: coasting on their prediction).
         """
         cfg = self.config
         t_s = float(t_s)
@@ -454,6 +486,14 @@ class Tracker:
             raise ValueError(
                 f"extras must have one entry per detection ({n_det}), got {len(extras)}"
             )
+        if bearing_only is None:
+            bo = np.zeros(n_det, bool)
+        else:
+            bo = np.asarray(bearing_only, bool).reshape(-1)
+            if len(bo) != n_det:
+                raise ValueError(
+                    f"bearing_only must have one flag per detection ({n_det}), got {len(bo)}"
+                )
         if self._t_prev is not None and not t_s > self._t_prev:
             raise ValueError(f"t_s must increase: got {t_s} after {self._t_prev}")
         s, w, u = float(ego_speed_mps), float(ego_yaw_rate_rps), float(ego_lateral_speed_mps)
@@ -476,7 +516,9 @@ class Tracker:
         rec.priors = np.array([t.x for t in self._tracks]).reshape(-1, 4)
 
         # 2. gated Mahalanobis costs, all pairs at once
-        Rs = [self._meas_cov(z) for z in z_all]
+        Rs = [
+            self._hidden_cov(z) if b else self._meas_cov(z) for z, b in zip(z_all, bo, strict=True)
+        ]
         n_trk = len(self._tracks)
         d2 = np.full((n_trk, n_det), np.inf)
         if n_trk and n_det:
@@ -487,7 +529,15 @@ class Tracker:
             # d² = νᵀ S⁻¹ ν
             d2 = np.einsum("tni,tni->tn", nu, np.linalg.solve(S, nu[..., None])[..., 0])
             if cfg.gate_m is not None:
-                d2[np.linalg.norm(nu, axis=2) > cfg.gate_m] = np.inf
+                # metric gate; a hidden detection's range is not known: its range error
+                # counts up to hidden_range_sigma_m less
+                dist = np.linalg.norm(nu, axis=2)
+                for j in np.flatnonzero(bo):
+                    ub = z_all[j] / max(float(np.linalg.norm(z_all[j])), 1e-6)
+                    along = np.abs(nu[:, j] @ ub)
+                    across = np.abs(nu[:, j] @ np.array([-ub[1], ub[0]]))
+                    dist[:, j] = np.hypot(np.maximum(along - cfg.hidden_range_sigma_m, 0), across)
+                d2[dist > cfg.gate_m] = np.inf
         allowed = d2 <= cfg.gate_chi2
         rec.d2 = np.where(allowed, d2, np.inf)
 

@@ -217,7 +217,8 @@ def test_new_vehicle_gets_new_id():
 
 
 def test_gate_is_respected():
-    tr = Tracker(TrackerConfig(gate_m=4.0))
+    # measurement noise fixed here (the default's range term changes): 0.3 + 0.02 * 10 m
+    tr = Tracker(TrackerConfig(gate_m=4.0, meas_sigma_per_m=0.02))
     for k in range(10):  # a confirmed, well-settled parked car seen from a parked ego
         tr.step(k * DT, [[10.0, 0.0]], 0.0, 0.0)
     (track,) = tr.confirmed_tracks
@@ -288,3 +289,44 @@ def test_bad_config():
     with pytest.raises(KeyError, match="TrackerConfig.gate"):
         TrackerConfig.from_dict({"gate": 3.0})
     assert TrackerConfig.from_dict({"gate_m": None}).gate_m is None
+
+
+# ------------------------------------------------------------------ hidden ground points
+def test_hidden_detection_covariance_is_long_along_the_bearing():
+    cfg = TrackerConfig(bearing_sigma_rad=0.05, hidden_range_sigma_m=2.0)
+    tr = Tracker(cfg)
+    z = np.array([0.0, 4.0])  # abeam, left
+    R = tr._hidden_cov(z)
+    evals, evecs = np.linalg.eigh(R)
+    assert np.allclose(np.sort(evals), [(4.0 * 0.05) ** 2, 2.0**2])
+    assert abs(abs(evecs[:, np.argmax(evals)] @ np.array([0.0, 1.0])) - 1.0) < 1e-9
+
+
+def test_hidden_detections_keep_a_track_through_the_blind_zone():
+    """A car overtaking on the left: seen with its ground point, then only by bearing
+    (the detector puts it at an assumed range 3.0 m, the car is at 4 m); the track
+    follows it with one id and keeps its lateral offset near the last measured one."""
+    tr = Tracker(TrackerConfig())
+    ego_v, car_v = 20.0, 24.0
+    ids = set()
+    for k in range(40):
+        t = k * DT
+        p = np.array([-12.0 + (car_v - ego_v) * t, 4.0])  # ego frame, ego driving straight
+        if np.hypot(*p) > 7.3:
+            tr.step(t, [p], ego_v, 0.0)
+        else:
+            b = math.atan2(p[1], p[0])
+            tr.step(t, [[3.0 * math.cos(b), 3.0 * math.sin(b)]], ego_v, 0.0, bearing_only=[True])
+        ids |= {a[0] for a in tr.records[-1].assignments}
+        if k > 5:
+            assert len(tr.confirmed_tracks) == 1
+    (track,) = tr.confirmed_tracks
+    assert ids == {track.id}
+    assert abs(track.x[2] - car_v) < 2.0  # ground speed
+    assert 2.0 < track.x[1] < 5.0
+
+
+def test_bearing_only_flags_must_match_detections():
+    tr = Tracker()
+    with pytest.raises(ValueError, match="bearing_only"):
+        tr.step(0.0, [[1.0, 2.0]], 0.0, 0.0, bearing_only=[True, False])

@@ -1,0 +1,153 @@
+"""Section 5 detection: compensation maps, motion hypotheses, the motion score."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.camera_io import load_camera
+from estimator.compensation import FrameCompensator
+from estimator.detection import (
+    DetectorConfig,
+    VehicleDetector,
+    hypothesis_homography,
+    normalized_difference,
+)
+from estimator.geometry import skew
+from estimator.homography import homography, make_state
+
+DT = 1.0 / 15.0  # [s]
+X_HIGHWAY = make_state([0.0, -25.0, 0.0], [0.004, -0.003, 0.002], [0.003, -0.004, 0.0])
+
+
+def _exact_maps(cam, H, scale):
+    """Where each pixel of the image at ``scale`` was before H, by projecting every ray."""
+    W, Hh = -(-cam.width // scale), -(-cam.height // scale)
+    v, u = np.mgrid[0:Hh, 0:W].astype(float)
+    w = np.stack([(u + 0.5) * scale - 0.5, (v + 0.5) * scale - 0.5], axis=-1).reshape(-1, 2)
+    P = cam.unproject(w)
+    q = cam.project(P @ np.linalg.inv(H).T)
+    return ((q + 0.5) / scale - 0.5).reshape(Hh, W, 2)
+
+
+@pytest.mark.parametrize(
+    ("preset", "scale", "tol_px"),
+    [
+        ("omni-near", 1, 0.05),
+        ("omni-near", 2, 0.1),
+        ("omni-far", 2, 0.1),
+        ("rectilinear-rear-left", 1, 0.3),
+    ],
+)
+def test_coarse_maps_match_exact_projection(preset, scale, tol_px):
+    """The grid-interpolated maps (with the exact ring near the horizon) stay within
+    tol_px (p99, pixels of that scale) of projecting every ray, on the road pixels
+    whose source is in the image."""
+    cam, mount = load_camera(preset)
+    comp = FrameCompensator(cam, mount)
+    H = homography(X_HIGHWAY, mount.K0, DT)
+    mx, my = comp.maps_h(H, scale)
+    ref = _exact_maps(cam, H, scale)
+    road = comp.road_mask(scale)
+    inside = (ref[..., 0] > 1) & (ref[..., 1] > 1)
+    inside &= (ref[..., 0] < mx.shape[1] - 2) & (ref[..., 1] < mx.shape[0] - 2)
+    sel = road & inside
+    err = np.hypot(mx - ref[..., 0], my - ref[..., 1])[sel]
+    assert sel.sum() > 1000
+    assert np.percentile(err, 99) < tol_px
+
+
+def test_warp_compat_api_and_road_mask():
+    cam, mount = load_camera("omni-near")
+    comp = FrameCompensator(cam, mount)
+    img = np.random.default_rng(0).uniform(0, 255, (cam.height, cam.width)).astype(np.float32)
+    out, ok = comp.warp(img, X_HIGHWAY, DT)
+    assert out.shape == img.shape and ok.dtype == bool
+    assert not ok[~comp.road].any()  # only road rays are compensated
+    # identity motion: the warp returns the image
+    out0, ok0 = comp.warp(img, np.zeros(9), DT)
+    assert (
+        np.abs(out0 - img)[ok0 & (cv2.erode(ok0.astype(np.uint8), np.ones((3, 3))) > 0)].max()
+        < 1e-3
+    )
+
+
+def test_hypothesis_homography_road_and_static_heights():
+    """lambda = 1 is the road homography; a static point at height z moves like
+    lambda = h / (h - z); lambda = 0 keeps a point fixed to the car (vibration only)."""
+    cam, mount = load_camera("omni-near")
+    K0 = mount.K0
+    n = K0 / np.linalg.norm(K0)
+    h = mount.height_m
+    x = make_state([0.0, -25.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert np.allclose(hypothesis_homography(x, K0, n, DT, 1.0), homography(x, K0, DT))
+    # a static point at height z, 12 m ahead-left (camera: X right, Y back, Z down)
+    for z in (0.0, 0.5, 1.2):
+        P_a = np.array([-4.0, -12.0, h - z])
+        P_b = P_a - np.asarray(x[:3]) * DT  # the camera moved by V dt; no rotation
+        lam = h / (h - z)
+        Hl = hypothesis_homography(x, K0, n, DT, lam)
+        q = Hl @ P_a
+        w_pred, w_true = cam.project(q[None]), cam.project(P_b[None])
+        assert np.linalg.norm(w_pred - w_true) < 1e-6
+    # lambda = 0: only the vibration part of W (the car's yaw, about n, is removed)
+    xw = make_state([0.0, -25.0, 0.0], [0.02, -0.01, 0.3], [0.0, 0.0, 0.0])
+    H0 = hypothesis_homography(xw, K0, n, DT, 0.0)
+    W_vib = np.array([0.02, -0.01, 0.0])  # n = +Z for the omni mount
+    assert np.allclose(H0, np.eye(3) - skew(W_vib) * DT, atol=1e-12)
+
+
+def _textured(shape, seed, blob_px=8):
+    rng = np.random.default_rng(seed)
+    small = (shape[0] // blob_px, shape[1] // blob_px)
+    img = rng.uniform(0, 255, small).astype(np.float32)
+    return cv2.resize(img, shape[::-1], interpolation=cv2.INTER_CUBIC)
+
+
+def test_score_separates_a_comoving_patch_from_the_road():
+    """Earlier frame: texture. Current frame: the texture moved like the road, except a
+    patch that stayed where it was (a vehicle driving at the ego car's speed). The
+    score is high on the patch and below the threshold on the road."""
+    cam, mount = load_camera("omni-near")
+    cfg = DetectorConfig()
+    det = VehicleDetector(cam, mount, cfg)
+    comp, s = det.comp, cfg.scale
+    early = _textured((cam.height // s, cam.width // s), 1)
+    x = X_HIGHWAY
+    n = comp.n
+    warped = {}
+    for lam in (0.0, 1.0):  # the two basic hypotheses: fixed to the car, on the road
+        warped[lam], _ = comp.warp_h(early, hypothesis_homography(x, mount.K0, n, DT, lam), s)
+    current = warped[1.0].copy()
+    ok = det.road_s & det.valid_s
+    ys, xs = np.nonzero(ok)
+    # a patch on the road region to the left, where the road moves ~10 px per frame
+    v0, u0 = 150, 25
+    patch = np.zeros_like(ok)
+    patch[v0 : v0 + 14, u0 : u0 + 24] = True
+    patch &= ok
+    assert patch.sum() > 150
+    current[patch] = warped[0.0][patch]
+    m = det._score(
+        current, warped, ok, cfg.window_px / s, cfg.energy_k, cfg.registration_sigma_px / s
+    )
+    inner = cv2.erode(patch.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    road = ok & ~(cv2.dilate(patch.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0)
+    assert np.median(m[inner]) > cfg.score_threshold
+    assert np.mean(m[road] > cfg.score_threshold) < 0.002
+
+
+def test_normalized_difference_is_zero_for_identical_frames():
+    img = _textured((64, 64), 2)
+    nd = normalized_difference(img, img, 50.0, 7)
+    assert np.abs(nd).max() < 1e-6
+
+
+def test_bad_config():
+    with pytest.raises(ValueError):
+        DetectorConfig(static_lambdas=(1.5, 2.0))
+    with pytest.raises(ValueError):
+        DetectorConfig(moving_lambdas=(0.0, 1.2))
+    with pytest.raises(ValueError):
+        DetectorConfig(scale=3)
