@@ -76,7 +76,7 @@ def motion_panel(
     return _label(_fit(out), "(a) ego-motion, points in/out/unused")
 
 
-def difference_panel(nd: np.ndarray, valid: np.ndarray, scale: float = 12.0) -> np.ndarray:
+def difference_panel(nd: np.ndarray, valid: np.ndarray, scale: float = 3.0) -> np.ndarray:
     """(c): |normalized difference| as an image."""
     img = np.clip(np.abs(nd) * (255.0 / scale), 0, 255).astype(np.uint8)
     img[~valid] = 0
