@@ -16,7 +16,6 @@ import cv2
 import numpy as np
 import yaml
 
-
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 

@@ -7,8 +7,10 @@ Symbols (one frame pair a -> b):
 - ``P`` (9, 9): covariance of ``x̂``.
 - ``x⁻``, ``P⁻``: the prior of this frame pair, i.e. the previous posterior moved
   forward by the time update (eq. 19: ``x⁻ = B x̂``, ``P⁻ = B P Bᵀ + Q``) and
-  corrected by the CAN speed (`can_speed_update`).
-- ``B`` (9, 9), ``Q`` (9, 9): state transition and process noise (`transition`).
+  corrected by the CAN speed (`can_speed_update`; a CAN speed that rules the
+  predicted one out first re-initialises V and W, `can_consistent`, `reset_speed`).
+- ``B`` (9, 9), ``Q`` (9, 9): state transition and process noise (`transition`); A of
+  the next pair is A plus the roll/pitch part of the rotation W measured over this one.
 - ``z``: the measurements, one per image point: the brightness of image A at the
   point. The model predicts it as the brightness of image B at the warped
   pixel ``w_b(x)``.
@@ -33,6 +35,7 @@ alternative (`robust_weights`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,9 +56,15 @@ class FilterConfig:
 
     # time update (eq. 19)
     V_walk_mps: tuple[float, float, float] = (1.5, 0.5, 0.2)  # [m/s/sqrt(s)] fwd, lat, vert
-    W_walk_rps: float = 0.3  # [rad/s/sqrt(s)] random walk of W (vibration rate included)
-    A_tau_s: float = 0.3  # [s] correlation time of A (mean-reverting towards the mount)
-    A_sigma_plane_rad: float = float(np.radians(1.0))  # [rad] stationary std, roll/pitch
+    W_walk_rps: float = 0.3  # [rad/s/sqrt(s)] random walk of W about axes in the road plane
+    # (roll and pitch rates: the camera's vibration on its mount, the body's motion)
+    W_walk_yaw_rps: float = 0.1  # [rad/s/sqrt(s)] random walk of the yaw rate (about the
+    # road normal); abrupt turns beyond it are the estimator's manoeuvre retry
+    A_from_W: bool = True  # [-] A moves with the roll/pitch part of W between frame pairs
+    A_walk_rad: float = float(np.radians(0.1))  # [rad/sqrt(s)] change of A that W does not
+    # explain (road slope changes), roll/pitch
+    A_tau_s: float = 1.0  # [s] correlation time of A (mean-reverting towards the mount)
+    A_sigma_plane_rad: float = float(np.radians(1.0))  # [rad] prior std, roll/pitch
     A_sigma_normal_rad: float = float(np.radians(0.05))  # [rad] stationary std, yaw
     # prior of the first frame pair (before the CAN speed)
     V0_sigma_mps: tuple[float, float, float] = (30.0, 1.0, 0.3)  # [m/s] fwd, lat, vert
@@ -63,6 +72,9 @@ class FilterConfig:
     # CAN speed (a pseudo-measurement of the forward speed, `can_speed_update`)
     can_rel_sigma: float = 0.12  # [-] relative std: a 10 % scale error stays correctable
     can_abs_sigma_mps: float = 0.3  # [m/s] absolute std (noise, quantisation)
+    can_gate_rel: float = 0.3  # [-] a CAN speed that disagrees with the predicted forward
+    # speed by more than this fraction (plus 3 sigma) means the state is lost: V and the
+    # yaw rate are re-initialised from the CAN (`can_consistent`); <= 0: never
     # time gaps
     nominal_dt_s: float | None = None  # [s] expected frame interval; None: learnt
     gap_factor: float = 2.5  # [-] dt > gap_factor * nominal is a gap (flagged)
@@ -96,18 +108,33 @@ def transition(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(B (9, 9), Q (9, 9)) of the time update over dt [s] (eq. 19).
 
-    V, W: random walks (B = I, Q = walk² dt). A: first-order Gauss-Markov towards
-    the nominal mount (A = 0), ``A_k+1 = rho A_k + noise`` with ``rho = exp(-dt/tau)``
-    and ``Q_A = Sigma_A (1 - rho²)`` so that A keeps its stationary covariance
-    Sigma_A (`FilterConfig.A_sigma_*`): vibration oscillates about the mount.
+    V: random walk. W: random walk, ``W_walk_rps`` about axes in the road plane (roll
+    and pitch rates, which vibration makes oscillate) and ``W_walk_yaw_rps`` about the
+    road normal n (the car's yaw rate). A: the state of a frame pair (t, t + dt) holds A
+    at t and the rotation W over the pair, so the next pair's A is, to first order,
+    ``A + Π W dt`` with ``Π = I - n nᵀ`` (``A_from_W``): the roll/pitch of the camera
+    relative to the road changes by the roll/pitch rotation measured between the frames
+    (the yaw part is the car turning, which leaves the mount alone). On top of that A
+    is a first-order Gauss-Markov process towards the nominal mount (A = 0):
+    ``A_k+1 = rho (A_k + Π W_k dt) + noise``, ``rho = exp(-dt / A_tau_s)``, with noise
+    ``A_walk_rad`` (changes W does not explain, e.g. road slope) in the plane and
+    ``A_sigma_normal_rad² (1 - rho²)`` about the normal (the rigid mount's yaw keeps its
+    stationary std).
     """
+    n = np.asarray(K0, dtype=float) / np.linalg.norm(K0)
+    nn = np.outer(n, n)
+    Pi = np.eye(3) - nn
     rho = float(np.exp(-dt_s / cfg.A_tau_s))
     B = np.eye(N_STATE)
     B[A_SLICE, A_SLICE] *= rho
+    if cfg.A_from_W:
+        B[A_SLICE, W_SLICE] = rho * Pi * dt_s
     Q = np.zeros((N_STATE, N_STATE))
     Q[V_SLICE, V_SLICE] = _car_cov(R_car_cam, cfg.V_walk_mps) * dt_s
-    Q[W_SLICE, W_SLICE] = np.eye(3) * cfg.W_walk_rps**2 * dt_s
-    Q[A_SLICE, A_SLICE] = _A_cov(K0, cfg.A_sigma_plane_rad, cfg.A_sigma_normal_rad) * (1 - rho**2)
+    Q[W_SLICE, W_SLICE] = (cfg.W_walk_rps**2 * Pi + cfg.W_walk_yaw_rps**2 * nn) * dt_s
+    Q[A_SLICE, A_SLICE] = (
+        cfg.A_walk_rad**2 * dt_s * Pi + cfg.A_sigma_normal_rad**2 * (1 - rho**2) * nn
+    )
     return B, Q
 
 
@@ -136,6 +163,41 @@ def can_speed_update(
     k = Ph / s
     x_new = x + k * (v_can_mps - float(h @ x))
     return x_new, _sym(P - np.outer(k, Ph))
+
+
+def can_consistent(
+    x: np.ndarray, P: np.ndarray, v_can_mps: float, R_car_cam: np.ndarray, cfg: FilterConfig
+) -> bool:
+    """False when the CAN speed rules out the predicted forward speed (gross error).
+
+    The CAN speed has a bounded scale error (tyres, calibration: ~10 %); a predicted
+    forward speed ``(R_car_cam V)[0]`` further from it than ``can_gate_rel |v_can|`` plus
+    3 sigma (prediction and CAN noise) cannot be right: the images locked onto a wrong
+    solution (e.g. yaw traded for speed when the road ahead and behind is hidden).
+    """
+    if cfg.can_gate_rel <= 0:
+        return True
+    h = np.zeros(N_STATE)
+    h[V_SLICE] = R_car_cam[0]
+    nu = v_can_mps - float(h @ x)
+    sigma = math.sqrt(float(h @ P @ h) + cfg.can_abs_sigma_mps**2)
+    return abs(nu) <= cfg.can_gate_rel * abs(v_can_mps) + 3.0 * sigma
+
+
+def reset_speed(
+    x: np.ndarray, P: np.ndarray, v_can_mps: float, R_car_cam: np.ndarray, cfg: FilterConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """(x, P) with V set to the CAN speed (forward) and V, W back to the initial prior std."""
+    x, P = x.copy(), P.copy()
+    x[V_SLICE] = R_car_cam.T @ np.array([v_can_mps, 0.0, 0.0])
+    for sl, cov in (
+        (V_SLICE, _car_cov(R_car_cam, cfg.V0_sigma_mps)),
+        (W_SLICE, np.eye(3) * cfg.W0_sigma_rps**2),
+    ):
+        P[sl, :] = 0.0
+        P[:, sl] = 0.0
+        P[sl, sl] = cov
+    return x, _sym(P)
 
 
 def iekf_update(

@@ -10,10 +10,12 @@ from scipy.optimize import least_squares
 from estimator.iekf import (
     FilterConfig,
     IteratedEKF,
+    can_consistent,
     can_speed_update,
     data_snooping,
     iekf_update,
     initial_prior,
+    reset_speed,
     robust_weights,
     time_update,
     transition,
@@ -93,21 +95,78 @@ def test_robust_weights() -> None:
         robust_weights(r, s, "cauchy", 1.0)
 
 
-def test_time_update_keeps_vibration_stationary() -> None:
-    """A is mean-reverting: from its stationary covariance, eq. 19 keeps it there."""
+def test_time_update_links_A_to_the_roll_pitch_rotation() -> None:
+    """eq. 19 with A_k+1 = rho (A_k + Π W_k dt): A follows the measured roll/pitch rotation.
+
+    (Replaces the test of the former model, where A was an independent Gauss-Markov
+    process with 0.6 deg of noise per frame, re-estimated almost from scratch each pair.)
+    """
     cfg = FilterConfig()
+    dt = 1 / 15
     x, P = initial_prior(cfg, MOUNT.R_car_cam, MOUNT.K0)
-    x[6:] = [0.01, -0.01, 0.0]
-    B, Q = transition(1 / 15, cfg, MOUNT.R_car_cam, MOUNT.K0)
+    n = MOUNT.K0 / np.linalg.norm(MOUNT.K0)
+    roll_rate = MOUNT.R_car_cam.T @ np.array([0.05, 0.0, 0.0])  # about car x (in the plane)
+    x[3:6] = roll_rate + 0.2 * n  # plus a yaw rate about the road normal
+    x[6:] = MOUNT.R_car_cam.T @ np.array([0.01, -0.01, 0.0])
+    B, Q = transition(dt, cfg, MOUNT.R_car_cam, MOUNT.K0)
     assert B.shape == Q.shape == (9, 9)
     assert np.allclose(Q, Q.T) and np.all(np.linalg.eigvalsh(Q) >= -1e-15)
     x2, P2 = time_update(x, P, B, Q)
-    assert np.allclose(P2[6:, 6:], P[6:, 6:])
-    assert np.allclose(x2[6:], np.exp(-1 / 15 / cfg.A_tau_s) * x[6:])  # decays towards 0
+    rho = np.exp(-dt / cfg.A_tau_s)
+    # the roll rotation moves A, the yaw rate (the car turning) does not
+    assert np.allclose(x2[6:], rho * (x[6:] + roll_rate * dt))
     assert np.allclose(x2[:6], x[:6])  # V, W: random walks
+    # the uncertainty of W over the pair carries into A
+    assert P2[6, 6] > rho**2 * P[6, 6]
+    # process noise: yaw rate tighter than the roll/pitch rates (vibration)
+    assert n @ Q[3:6, 3:6] @ n == pytest.approx(cfg.W_walk_yaw_rps**2 * dt)
+    e = MOUNT.R_car_cam.T @ np.array([1.0, 0.0, 0.0])
+    assert e @ Q[3:6, 3:6] @ e == pytest.approx(cfg.W_walk_rps**2 * dt)
     # process noise grows with dt: a long gap widens V and W
     _, Q_long = transition(1.0, cfg, MOUNT.R_car_cam, MOUNT.K0)
     assert np.allclose(Q_long[:6, :6], 15 * Q[:6, :6])
+    # without the link, A is the mean-reverting process alone
+    B0, _ = transition(dt, FilterConfig(A_from_W=False), MOUNT.R_car_cam, MOUNT.K0)
+    assert np.allclose(B0[6:, 3:6], 0.0) and np.allclose(B0[6:, 6:], rho * np.eye(3))
+
+
+def test_A_from_W_matches_the_true_camera_motion() -> None:
+    """The link A_k+1 = A_k + Π W_k dt holds for the simulator's exact states (vibration)."""
+    from estimator.synthetic import drive_poses
+    from sim.camera_motion import CameraPose, motion_between
+
+    dt = 1 / 15
+    poses = drive_poses(MOUNT, np.arange(12) * dt, 20.0, 0.3, vib_amplitude_deg=0.5)
+    B, _ = transition(dt, FilterConfig(A_tau_s=1e9), MOUNT.R_car_cam, MOUNT.K0)
+    cams = [
+        CameraPose(poses.T_world_nominal[k], poses.T_world_actual[k], poses.A_cam_rad[k])
+        for k in range(12)
+    ]
+    B0, _ = transition(dt, FilterConfig(A_tau_s=1e9, A_from_W=False), MOUNT.R_car_cam, MOUNT.K0)
+    worst, worst0 = 0.0, 0.0
+    for k in range(10):
+        a = motion_between(cams[k], cams[k + 1], dt)
+        b = motion_between(cams[k + 1], cams[k + 2], dt)
+        x = np.r_[a.V_mps, a.W_rps, a.A_rad]
+        worst = max(worst, float(np.max(np.abs((B @ x)[6:] - b.A_rad))))
+        worst0 = max(worst0, float(np.max(np.abs((B0 @ x)[6:] - b.A_rad))))
+    # what is left is of second order, |A| |W dt| (0.5 deg x 1.1 deg of yaw per frame)
+    assert worst < np.radians(0.015)
+    assert worst0 > np.radians(0.1)  # the roll/pitch rotation between the frames itself
+
+
+def test_can_gate_resets_a_lost_speed() -> None:
+    cfg = FilterConfig()
+    x, P = initial_prior(cfg, MOUNT.R_car_cam, MOUNT.K0)
+    x[:3] = MOUNT.R_car_cam.T @ [20.0, 0.0, 0.0]
+    P[:3, :3] = np.eye(3) * 0.1**2
+    assert can_consistent(x, P, 21.5, MOUNT.R_car_cam, cfg)  # a 7.5 % CAN scale error is fine
+    assert not can_consistent(x, P, 30.0, MOUNT.R_car_cam, cfg)  # 50 %: the state is lost
+    assert can_consistent(x, P, 30.0, MOUNT.R_car_cam, FilterConfig(can_gate_rel=0.0))
+    x2, P2 = reset_speed(x, P, 30.0, MOUNT.R_car_cam, cfg)
+    assert (MOUNT.R_car_cam @ x2[:3])[0] == pytest.approx(30.0)
+    assert np.allclose(x2[3:], x[3:])
+    assert P2[3, 3] == pytest.approx(cfg.W0_sigma_rps**2) and np.all(np.linalg.eigvalsh(P2) > 0)
 
 
 def test_can_prior_is_forward_and_not_overconfident() -> None:

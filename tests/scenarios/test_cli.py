@@ -11,8 +11,9 @@ from estimator.camera_io import load_camera
 
 
 def omnibench(*args: str, timeout: int = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "scenarios", *args], capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "scenarios", *args], capture_output=True, text=True, timeout=timeout
+    )
 
 
 def _points_csv(path: Path, noise_px: float = 0.5) -> None:
@@ -60,17 +61,55 @@ def test_estimate_bad_inputs_are_named(tmp_path):
     frames.mkdir()
     can = tmp_path / "can.csv"
     can.write_text("t_s,speed_mps\n0,20\n0.1,nan_or_junk\n")
-    proc = omnibench("estimate", str(frames), "--camera", "omni-near", "--can", str(can),
-                     "--out", str(tmp_path / "o"), "--fps", "15")
+    proc = omnibench(
+        "estimate",
+        str(frames),
+        "--camera",
+        "omni-near",
+        "--can",
+        str(can),
+        "--out",
+        str(tmp_path / "o"),
+        "--fps",
+        "15",
+    )
     assert proc.returncode == 2 and "can.csv" in proc.stderr and "row 3" in proc.stderr
     can.write_text("time,v\n0,20\n")
-    proc = omnibench("estimate", str(frames), "--camera", "omni-near", "--can", str(can),
-                     "--out", str(tmp_path / "o"), "--fps", "15")
+    proc = omnibench(
+        "estimate",
+        str(frames),
+        "--camera",
+        "omni-near",
+        "--can",
+        str(can),
+        "--out",
+        str(tmp_path / "o"),
+        "--fps",
+        "15",
+    )
     assert proc.returncode == 2 and "t_s" in proc.stderr
     can.write_text("t_s,speed_mps\n0,20\n")
-    proc = omnibench("estimate", str(frames), "--camera", "omni-near", "--can", str(can),
-                     "--out", str(tmp_path / "o"), "--fps", "15")
+    proc = omnibench(
+        "estimate",
+        str(frames),
+        "--camera",
+        "omni-near",
+        "--can",
+        str(can),
+        "--out",
+        str(tmp_path / "o"),
+        "--fps",
+        "15",
+    )
     assert proc.returncode == 2 and "no PNG/JPEG frames" in proc.stderr
-    proc = omnibench("estimate", str(tmp_path / "video.mp4"), "--camera", "nocam",
-                     "--can", str(can), "--out", str(tmp_path / "o"))
+    proc = omnibench(
+        "estimate",
+        str(tmp_path / "video.mp4"),
+        "--camera",
+        "nocam",
+        "--can",
+        str(can),
+        "--out",
+        str(tmp_path / "o"),
+    )
     assert proc.returncode == 2 and "nocam" in proc.stderr

@@ -32,8 +32,14 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"] == 24
-    for key in ("speed_rmse_mps", "speed_rmse_pct", "yaw_rate_rmse_dps", "angle_rmse_deg",
-                "prior_speed_rmse_mps", "prior_yaw_rate_rmse_dps"):
+    for key in (
+        "speed_rmse_mps",
+        "speed_rmse_pct",
+        "yaw_rate_rmse_dps",
+        "angle_rmse_deg",
+        "prior_speed_rmse_mps",
+        "prior_yaw_rate_rmse_dps",
+    ):
         assert math.isfinite(m["ego"][key]), key
     # the CAN prior is 8 % off: the images must pull the speed towards the truth
     assert m["ego"]["speed_rmse_mps"] < m["ego"]["prior_speed_rmse_mps"]
@@ -42,8 +48,17 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert set(m["localization"]) >= {"median_error_m", "p90_error_m"}
     for key in ("render_ms_per_frame", "estimate_ms_per_frame", "detect_track_ms_per_frame"):
         assert m["timing"][key] > 0
-    for name in ("egomotion.csv", "tracks.csv", "ego_error.png", "tracks.png", "surround.png",
-                 "analysis.mp4", "report.html", "drive/drive.mp4", "drive/groundtruth.jsonl"):
+    for name in (
+        "egomotion.csv",
+        "tracks.csv",
+        "ego_error.png",
+        "tracks.png",
+        "surround.png",
+        "analysis.mp4",
+        "report.html",
+        "drive/drive.mp4",
+        "drive/groundtruth.jsonl",
+    ):
         assert (out / name).stat().st_size > 0, name
     rows = (out / "egomotion.csv").read_text().splitlines()
     assert len(rows) == 25 and rows[0].startswith("frame,t_s,V_x")
@@ -57,8 +72,12 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
 def test_run_reports_bad_scenario_clearly(tmp_path: Path):
     sc = tmp_path / "bad.yaml"
     sc.write_text("name: x\nfps: fast\n")
-    proc = subprocess.run([sys.executable, "-m", "scenarios", "run", str(sc), "--out",
-                           str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "scenarios", "run", str(sc), "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2
     assert "fps" in proc.stderr and "bad.yaml" in proc.stderr
     assert not (tmp_path / "o" / "metrics.json").exists()

@@ -23,8 +23,13 @@ def tiny(**over):
         "duration_s": N / 15,
         "fps": 15,
         "camera": {"preset": "omni-near", "width": 200, "height": 200},
-        "sensor": {"noise_std": 0, "motion_blur": False, "jpeg_quality": None,
-                   "gain_drift": 0, "vignetting": 0},
+        "sensor": {
+            "noise_std": 0,
+            "motion_blur": False,
+            "jpeg_quality": None,
+            "gain_drift": 0,
+            "vignetting": 0,
+        },
     }
     d.update(over)
     return scenario_from_dict(d)
@@ -39,8 +44,15 @@ def drive_dir(tmp_path_factory):
 
 
 def test_outputs_complete(drive_dir):
-    for name in ("drive.mp4", "camera.yaml", "scenario.yaml", "can.csv", "timestamps.csv",
-                 "groundtruth.jsonl", "manifest.json"):
+    for name in (
+        "drive.mp4",
+        "camera.yaml",
+        "scenario.yaml",
+        "can.csv",
+        "timestamps.csv",
+        "groundtruth.jsonl",
+        "manifest.json",
+    ):
         assert (drive_dir / name).stat().st_size > 0, name
     gt = load_groundtruth(drive_dir)
     assert [g["frame"] for g in gt] == list(range(N))
