@@ -534,6 +534,17 @@ def sample_points(images: tuple[np.ndarray, ...], w_level: np.ndarray) -> np.nda
     return out
 
 
+def _in_level(w: np.ndarray, P: np.ndarray, K0: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N,) bool: level pixels w (N, 2) inside the level image whose rays P (N, 3) are on
+    the road's side (``K0ᵀ P > 0``); w is set to -1 elsewhere (no NaN left). A NaN pixel
+    (no image) fails the comparisons."""
+    hl, wl = shape
+    u, v = w[:, 0], w[:, 1]
+    ok = (P @ K0 > 0) & (u >= 0) & (u <= wl - 1) & (v >= 0) & (v <= hl - 1)
+    w[~ok] = -1.0
+    return ok
+
+
 def select_points(
     level: _Level,
     frame: _Frame,
@@ -878,10 +889,7 @@ class DirectEstimator(EgoMotionEstimator):
         P_b = map_rays(rays, homography(x, self.K0, dt))
         w_b = cam.project(P_b) / s  # level pixels
         hl, wl = level.shape
-        inside = np.all(np.isfinite(w_b), axis=1) & (P_b @ self.K0 > 0)
-        w_b[~inside] = -1.0
-        inside &= (w_b[:, 0] >= 0) & (w_b[:, 0] <= wl - 1) & (w_b[:, 1] >= 0)
-        inside &= w_b[:, 1] <= hl - 1
+        inside = _in_level(w_b, P_b, self.K0, level.shape)
         ui = np.rint(w_b[:, 0]).astype(int).clip(0, wl - 1)
         vi = np.rint(w_b[:, 1]).astype(int).clip(0, hl - 1)
         idx = np.flatnonzero(inside & (level.valid_b[vi, ui] > 0))
@@ -1162,10 +1170,7 @@ class DirectEstimator(EgoMotionEstimator):
         Hs = np.stack([homography(x, self.K0, dt) for x in X])  # (G, 3, 3)
         P_b = np.einsum("gij,nj->gni", Hs, rays).reshape(-1, 3)
         w_b = cam.project(P_b) / s
-        hl, wl = level.shape
-        ok = np.all(np.isfinite(w_b), axis=1) & (P_b @ self.K0 > 0)
-        w_b[~ok] = -1.0
-        ok &= (w_b[:, 0] >= 0) & (w_b[:, 0] <= wl - 1) & (w_b[:, 1] >= 0) & (w_b[:, 1] <= hl - 1)
+        ok = _in_level(w_b, P_b, self.K0, level.shape)
         b_val = sample_points(B.stacks[lvl][:1], w_b)[:, 0].astype(np.float64)
         r2 = (np.tile(a_val, len(X)) - self._gain * b_val) ** 2 / cfg.sigma_intensity**2
         r2 = np.where(ok, np.minimum(r2, cfg.search_truncation), cfg.search_truncation)
@@ -1228,9 +1233,7 @@ class DirectEstimator(EgoMotionEstimator):
         H_inv = np.linalg.inv(homography(self.ekf.x, self.K0, dt))
         P_a = level.roi_rays[tex] @ H_inv.T
         w_a = self.camera.project(P_a) / s
-        ok = np.all(np.isfinite(w_a), axis=1) & (P_a @ self.K0 > 0)
-        w_a[~ok] = -1.0
-        ok &= (w_a[:, 0] >= 0) & (w_a[:, 0] <= wm - 1) & (w_a[:, 1] >= 0) & (w_a[:, 1] <= hm - 1)
+        ok = _in_level(w_a, P_a, self.K0, level.shape)
         ui = np.rint(w_a[:, 0]).astype(int).clip(0, wm - 1)
         vi = np.rint(w_a[:, 1]).astype(int).clip(0, hm - 1)
         ok &= level.valid_b[vi, ui] > 0
