@@ -69,6 +69,7 @@ import cv2
 import numpy as np
 
 from estimator.camera import CameraModel
+from estimator.compensation import FrameCompensator
 from estimator.homography import (
     A_SLICE,
     N_STATE,
@@ -802,7 +803,7 @@ class DirectEstimator(EgoMotionEstimator):
         self._roi_full = roi0.reshape(camera.height, camera.width)
         self._roi_sample = self.levels[0].roi_idx[::4]  # ROI pixels for the frame checks
         self._prev: _Frame | None = None
-        self._pixel_rays: np.ndarray | None = None
+        self._compensator: FrameCompensator | None = None
         self._mask_lvl = min(max(cfg.mask_level, 0), cfg.levels - 1)
         grid = self.levels[self._mask_lvl]
         hm, wm = grid.shape
@@ -820,23 +821,14 @@ class DirectEstimator(EgoMotionEstimator):
     ) -> np.ndarray:
         """(H, W) float32 previous frame warped onto the current one with x (default x̂).
 
-        Per-pixel rays are computed once; then one homography multiply (H^-1: rays of
-        the current frame to the previous one), one projection and one cv2.remap.
-        Pixels off the road plane's side (``K^T P <= 0``) or without image are 0.
+        Uses `estimator.compensation.FrameCompensator` (per-camera maps built once).
+        Pixels whose road ray is not seen in the previous frame are 0.
         """
-        if self._pixel_rays is None:
-            self._pixel_rays = self.camera.pixel_rays().astype(np.float64).reshape(-1, 3)
+        if self._compensator is None:  # built on first use: per-pixel maps of the camera
+            self._compensator = FrameCompensator(self.camera, self.mount)
         x = self.ekf.x if x is None else x
-        H = homography(x, self.K0, dt_s)
-        P_a = self._pixel_rays @ np.linalg.inv(H).T
-        w_a = self.camera.project(P_a)
-        w_a[~(P_a @ self.K0 > 0)] = -10.0
-        w_a = np.nan_to_num(w_a, nan=-10.0).astype(np.float32)
-        m = w_a.reshape(self.camera.height, self.camera.width, 2)
-        src = np.asarray(image_prev, dtype=np.float32)
-        return cv2.remap(
-            src, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
-        )
+        warped, ok = self._compensator.warp(image_prev, x, dt_s)
+        return np.where(ok, warped, 0.0).astype(np.float32)
 
     # -- internals ----------------------------------------------------------------
     def _frame(self, gray: np.ndarray, t_s: float) -> _Frame:
