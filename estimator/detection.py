@@ -54,11 +54,17 @@ show where the vehicle meets the road, only its bearing. Such a detection is
 flagged ``hidden`` and placed on that bearing at ``hidden_range_frac`` of the
 edge's range; the tracker refines it (bearing-only update).
 
+Ego car (nearly) stopped (displacement over the baseline below
+``still_displacement_m``): every hypothesis is then almost the same warp, S ~ 0
+and m decides nothing, while a crossing vehicle is explained by none of them.
+There, as in eq. 22, a pixel that no static hypothesis explains is moving:
+``r = min_static E / (k + <|g|^2> sigma^2) > still_threshold``.
+
 Not detected: vehicles that do not move over the ground when the ego car does
 not either (nothing distinguishes them from static structure in two frames)
-and vehicles whose motion is not forward along the road (crossing traffic):
-those must show a larger-than-static parallax (lambda > max static) or be
-tracked; see `estimator.surround`.
+and, while the ego car moves, vehicles whose motion is not forward along the
+road (crossing traffic): those must show a larger-than-static parallax
+(lambda > max static) or be tracked; see `estimator.surround`.
 """
 
 from __future__ import annotations
@@ -102,8 +108,17 @@ class DetectorConfig:
     energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
     score_threshold: float = 0.5  # [-] m above which a pixel is independently moving
-    border_margin_px: int = 12  # [px] margin inside the field of view left out
+    border_margin_px: int = 12  # [px] margin inside the field of view's outer rim left out
+    # margin along the inner edge (the omni camera's car-body mask): the mask already ends
+    # ~45 px beyond the car body, and at that edge 1 px is ~0.25 m of road: a wide margin
+    # there hides the ground point of every vehicle within ~10 m instead of ~7.5 m
+    inner_margin_px: int = 4  # [px]
     coarse_level: bool = True  # [-] also score one pyramid level coarser
+    # ego car (nearly) stopped: the static and co-moving hypotheses coincide (S ~ 0) and
+    # m decides nothing; then a pixel that no static hypothesis explains is moving (the
+    # paper's compensated difference, eq. 22): r = min_static E / (k + <|g|^2> sigma^2)
+    still_displacement_m: float = 0.5  # [m] ego displacement over the baseline below this
+    still_threshold: float = 1.0  # [-] r above which a pixel moves (ego stopped)
     # plan view and blobs
     plan_range_m: float = 45.0  # half-size of the plan view [m]
     m_per_px: float = 0.2  # plan-view resolution [m/px]
@@ -279,16 +294,7 @@ class VehicleDetector:
         # analysed area: the field of view less a margin (warps are not defined beyond
         # it, and the car body's edge, which moves with the camera, is smeared into its
         # neighbourhood by motion blur)
-        mg = max(1, 2 * int(cfg.border_margin_px) + 1)
-        self.valid = (
-            cv2.erode(
-                camera.valid_mask().astype(np.uint8),
-                np.ones((mg, mg), np.uint8),
-                borderType=cv2.BORDER_CONSTANT,
-                borderValue=0,
-            )
-            > 0
-        )
+        self.valid = self._analysed_area(camera.valid_mask(), cfg)
         self.road_s = self.comp.road_mask(s)
         self.valid_s = (
             cv2.resize(
@@ -320,6 +326,23 @@ class VehicleDetector:
         self._rays = camera.pixel_rays()
         h = mount.height_m
         self._clearance_scale = (h - min(cfg.vehicle_clearance_m, 0.5 * h)) / h
+
+    @staticmethod
+    def _analysed_area(valid: np.ndarray, cfg: DetectorConfig) -> np.ndarray:
+        """(H, W) bool: the field of view less border_margin_px inside its outer rim and
+        inner_margin_px around its holes (the car-body mask)."""
+        v = np.asarray(valid, np.uint8)
+        filled = ndimage.binary_fill_holes(v > 0).astype(np.uint8)
+        hole = filled & (1 - v)
+
+        def disk(r_px: int) -> np.ndarray:
+            return np.ones((2 * max(0, int(r_px)) + 1,) * 2, np.uint8)
+
+        outer = cv2.erode(
+            filled, disk(cfg.border_margin_px), borderType=cv2.BORDER_CONSTANT, borderValue=0
+        )
+        inner = cv2.dilate(hole, disk(cfg.inner_margin_px))
+        return (outer > 0) & (inner == 0) & (v > 0)
 
     def _inner_edge(self) -> np.ndarray:
         """(B,) range [m] of the nearest seen road cell per bearing bin (0.5 deg)."""
@@ -394,6 +417,12 @@ class VehicleDetector:
         sigma = cfg.registration_sigma_px / s
         score = self._score(a, warped, ok, K, cfg.energy_k, sigma)
         moving = (score > cfg.score_threshold) & ok
+        # ego (nearly) stopped: no static hypothesis explains the pixel (eq. 22's test)
+        disp_m = sum(float(np.linalg.norm(np.asarray(x, float)[:3])) * dt for x, dt in steps)
+        if disp_m < cfg.still_displacement_m:
+            r = self._static_residual(a, warped, ok, K, cfg.energy_k, sigma)
+            moving |= (r > cfg.still_threshold) & ok
+            score = np.maximum(score, r * (cfg.score_threshold / cfg.still_threshold))
         if cfg.coarse_level:
             ac = cv2.pyrDown(a)
             okc = (
@@ -578,6 +607,30 @@ class VehicleDetector:
         m = (E_sta - E_mov) / (S + k + G2 * sigma * sigma)
         m[~ok] = 0.0
         return m
+
+    @staticmethod
+    def _static_residual(
+        a: np.ndarray,
+        warped: dict[float, np.ndarray],
+        ok: np.ndarray,
+        K: float,
+        k: float,
+        sigma: float,
+    ) -> np.ndarray:
+        """r = min_static E / (k + <|g|^2> sigma^2), 0 outside ok (Gaussian window K [px])."""
+        okf = ok.astype(np.float32)
+        E_sta = None
+        for lam, w in warped.items():
+            if lam >= 1.0:
+                d = (a - w) * okf
+                e = _gauss(d * d, K)
+                E_sta = e if E_sta is None else np.minimum(E_sta, e)
+        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        G2 = _gauss((gu * gu + gv * gv) * okf, K)
+        r = E_sta / (k + G2 * sigma * sigma)
+        r[~ok] = 0.0
+        return r
 
     def _label_extent(
         self, labels: np.ndarray, n: int

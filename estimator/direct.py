@@ -113,6 +113,14 @@ class DirectConfig:
     mask_level: int = 1  # [-] pyramid level of the off-road mask
     mask_motion_px: float = 0.5  # [px at the mask level] residual normal motion that marks
     # a pixel as off-road
+    parallax_lambdas: tuple[float, ...] = (1.15, 1.3, 1.6)  # [-] plane-parallax hypotheses of the
+    # off-road mask: a static point at height z above the road moves like the plane
+    # K = lambda K0, lambda = h / (h - z) (0.25, 0.45, 0.73 m for h = 1.95 m); () off
+    parallax_ratio: float = 0.7  # [-] a pixel is off-road when some lambda leaves less than
+    # this fraction of the road's windowed residual energy
+    parallax_window_px: float = 1.5  # [px at the mask level] Gaussian window of the energies
+    parallax_min_px: float = 0.5  # [px at the mask level] a hypothesis is only tested where it
+    # moves the pixel this much farther than the road does
     mask_smear: float = 0.2  # [-] marked pixels are also smeared along +/- this fraction of
     # their image motion (motion blur spreads a structure along its motion)
     mask_support_px: float = 2.0  # [px at each level] dilation of the mask (a point's
@@ -136,8 +144,10 @@ class DirectConfig:
     # the median of the recent fits is retried too
     manoeuvre_W_sigma_rps: float = 1.0  # [rad/s] added std of W for the retry
     manoeuvre_search_steps: int = 12  # [-] grid steps per side of the retry's searches
-    manoeuvre_V_sigma_mps: tuple[float, float, float] = (3.0, 3.0, 0.5)  # [m/s] added std
-    # of V (forward, lateral, vertical in car axes) for the retry
+    manoeuvre_V_sigma_mps: tuple[float, float, float] = (0.5, 3.0, 0.5)  # [m/s] added std
+    # of V (forward, lateral, vertical in car axes) for the retry: a manoeuvre is a turn
+    # and a side slip; the forward speed stays the CAN's to tell (a wide forward std lets
+    # a sudden yaw be traded for speed at low speed)
     presmooth_sigma_px: float = 0.7  # [px] Gaussian blur of the full-resolution frame
     sigma_intensity: float = 2.0  # [DN] measurement noise of one brightness sample
     sigma_flow_px: float = 0.2  # [px] model/interpolation noise, as a flow error (level px)
@@ -677,6 +687,7 @@ class EgoMotionEstimator:
         self._t_prev: float | None = None
         self._can_prev = math.nan
         self._dts: list[float] = []
+        self._v_can = math.nan  # CAN speed of the current frame pair [m/s] (NaN: missing)
 
     def step(
         self,
@@ -734,6 +745,7 @@ class EgoMotionEstimator:
                 )
                 ekf.x, ekf.P = reset_speed(ekf.x, ekf.P, v_can, self.R_car_cam, cfg)
             ekf.fuse_can(v_can)
+        self._v_can = v_can if not math.isnan(can) else math.nan
         self.ekf.begin_update()
         extra = self._measure(gray, t_s, dt, flags, reasons, compensate)
         return make_record(
@@ -946,7 +958,11 @@ class DirectEstimator(EgoMotionEstimator):
             and res["noise_scale"] > cfg.retry_noise_ratio * max(usual, 0.25)
         )
         if cfg.manoeuvre_retry and (
-            surprising or (failure is not None and failure[0] in ("few-inliers", "poor-fit"))
+            surprising
+            or (
+                failure is not None
+                and failure[0] in ("few-inliers", "poor-fit", "can-contradiction")
+            )
         ):
             first = res, ekf.x.copy(), ekf.P.copy()
             x_prior, P_prior = ekf.x_prior.copy(), ekf.P_prior.copy()
@@ -998,6 +1014,16 @@ class DirectEstimator(EgoMotionEstimator):
                 "few-inliers",
                 f"only {n_in} of {n_pts} finest-level points are inliers: "
                 "estimate unreliable, prior kept",
+            )
+        v_can = self._v_can
+        if not math.isnan(v_can) and not can_consistent(
+            self.ekf.x, self.ekf.P, v_can, self.R_car_cam, self.filter_cfg
+        ):
+            speed = float((self.R_car_cam @ self.ekf.x[V_SLICE])[0])
+            return (
+                "can-contradiction",
+                f"estimated speed {speed:.2f} m/s contradicts the CAN ({v_can:.2f} m/s) beyond "
+                "its scale error: the images locked onto a wrong motion, prior kept",
             )
         usual = float(np.median(self._s2_hist)) if len(self._s2_hist) >= 3 else 1.0
         if res["noise_scale"] > cfg.max_noise_scale * max(usual, 1.0):
@@ -1197,6 +1223,61 @@ class DirectEstimator(EgoMotionEstimator):
         thr = cfg.snoop_threshold * (cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * g2)
         return ((b_val - a_val) ** 2 <= thr) & ((b_val - a_moved) ** 2 > 4.0 * thr)
 
+    def _parallax_marks(
+        self,
+        A: _Frame,
+        B: _Frame,
+        dt: float,
+        tex: np.ndarray,
+        idx: np.ndarray,
+        r_road: np.ndarray,
+        ok: np.ndarray,
+        noise: float,
+    ) -> np.ndarray:
+        """(len(tex),) bool: textured pixels of B that a plane above the road explains better.
+
+        Plane + parallax: a static point at height z moves in the image like the plane
+        ``K = lambda K0`` with ``lambda = h / (h - z)`` (eq. 3-4 with the plane moved up).
+        For each ``parallax_lambdas`` hypothesis, A is warped onto B's textured ROI pixels
+        and the Gaussian-windowed residual energy compared with the road's (lambda = 1):
+        a pixel is marked where a raised plane leaves less than ``parallax_ratio`` of it
+        and the road's energy is above the noise. Guard-rails, posts and kerbs far from
+        the car move only a pixel or two more than the road there: each pixel's residual
+        alone is within the noise, the comparison over a window is not.
+        """
+        cfg, level = self.cfg, self.levels[self._mask_lvl]
+        s = float(level.scale)
+        hm, wm = level.shape
+        ksize = (0, 0)
+
+        def windowed(r: np.ndarray, use: np.ndarray) -> np.ndarray:
+            num = np.zeros(hm * wm, np.float32)
+            den = np.zeros(hm * wm, np.float32)
+            num[idx[use]] = np.square(r[use])
+            den[idx[use]] = 1.0
+            num = cv2.GaussianBlur(num.reshape(hm, wm), ksize, cfg.parallax_window_px)
+            den = cv2.GaussianBlur(den.reshape(hm, wm), ksize, cfg.parallax_window_px)
+            return (num / np.maximum(den, 1e-6)).ravel()[idx]
+
+        rays = level.roi_rays[tex]
+        better = np.zeros(len(tex), bool)
+        e_road = None
+        w_road = self.camera.project(rays @ np.linalg.inv(homography(self.ekf.x, self.K0, dt)).T)
+        for lam in cfg.parallax_lambdas:
+            H_inv = np.linalg.inv(homography(self.ekf.x, lam * self.K0, dt))
+            P_a = rays @ H_inv.T
+            w_a = self.camera.project(P_a) / s
+            # only where the raised plane moves visibly unlike the road (not at low speed,
+            # not near the focus of expansion): elsewhere the two cannot be told apart
+            apart = np.linalg.norm(w_a - w_road / s, axis=1) > cfg.parallax_min_px
+            ok_l = _in_level(w_a, P_a, self.K0, level.shape) & ok & apart
+            a_l = sample_points(A.stacks[self._mask_lvl][:1], w_a)[:, 0].astype(np.float64)
+            if e_road is None:
+                e_road = windowed(r_road, ok)
+            e_l = windowed(a_l - self._gain * B.stacks[self._mask_lvl][0].ravel()[idx], ok_l)
+            better |= ok_l & (e_l < cfg.parallax_ratio * e_road) & (e_road > noise**2 / 9)
+        return better
+
     def _offroad_map(self, A: _Frame, B: _Frame, dt: float, s2: float) -> np.ndarray:
         """(H_m, W_m) uint8: pixels of frame B that the estimated road motion does not explain.
 
@@ -1211,7 +1292,9 @@ class DirectEstimator(EgoMotionEstimator):
         points, where B is frame A (`select_points`): their pixels would blend, through
         the pyramid's smoothing, motion that is not the road's into road points. Motion
         blur spreads a structure along its image motion: marks are also smeared along
-        +/- ``mask_smear`` of the pixel's motion.
+        +/- ``mask_smear`` of the pixel's motion. Structure above the road whose residual
+        is within the noise pixel by pixel is caught by the plane-parallax test
+        (`_parallax_marks`, ``parallax_lambdas``).
         """
         cfg, lvl = self.cfg, self._mask_lvl
         level = self.levels[lvl]
@@ -1232,7 +1315,10 @@ class DirectEstimator(EgoMotionEstimator):
         a_val = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
         b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
         noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
-        bad = ok & (np.abs(a_val - self._gain * b_val) > cfg.mask_motion_px * g + noise)
+        r_road = a_val - self._gain * b_val
+        bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
+        if cfg.parallax_lambdas:
+            bad |= self._parallax_marks(A, B, dt, tex, idx, r_road, ok, noise)
         out = np.zeros(hm * wm, np.uint8)
         out[idx[bad]] = 1
         if cfg.mask_smear > 0 and bad.any():

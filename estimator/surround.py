@@ -16,8 +16,10 @@ motion. So every candidate is tracked (`estimator.tracking`), and a track is a
 "detected this frame" (1) or not (0) with weight `SurroundConfig.hit_rate_alpha`,
 reaches `vehicle_on` over at least `vehicle_min_hits` hits; it stays one while
 the rate is above `vehicle_off` (hysteresis). The frame's reported detections
-are the candidates assigned to vehicle tracks; the reported tracks are the
-vehicle tracks that were detected within the last `max_coast_frames` frames.
+are the candidates assigned to vehicle tracks, placed at their track's Kalman
+posterior of the frame (`SurroundConfig.report_filtered`: a single frame's
+nearest point jitters by 2-3 px, ~1-2 m at 15-20 m); the reported tracks are
+the vehicle tracks that were detected within the last `max_coast_frames` frames.
 
 A candidate whose ground point is hidden (car-body mask) is a bearing-only
 measurement for the tracker; once assigned to a track, its reported position is
@@ -49,6 +51,10 @@ class SurroundConfig:
     vehicle_off: float = 0.45  # [-] hit rate below which it is no longer one
     vehicle_min_hits: int = 5  # [frames] hits before a track can be a vehicle
     max_coast_frames: int = 2  # [frames] a vehicle track missed longer is not reported
+    # a vehicle's reported position: the track's Kalman posterior of this frame (its
+    # detection filtered with the earlier ones), not the single-frame detection; a hidden
+    # one (bearing only) is reported on its measured bearing at the track's range
+    report_filtered: bool = True  # [-]
 
     def __post_init__(self) -> None:
         if not (0 < self.hit_rate_alpha <= 1 and 0 <= self.vehicle_off <= self.vehicle_on <= 1):
@@ -168,7 +174,9 @@ class SurroundAnalyzer:
                 self._vehicle.add(t.id)
             if hit and t.id in self._vehicle and any(t.extra is c for c in cands):
                 d = t.extra
-                if d.hidden:  # bearing only: the track's range on the measured bearing
+                if cfg.report_filtered and not d.hidden:
+                    d.x_m, d.y_m = float(t.x[0]), float(t.x[1])
+                elif d.hidden:  # bearing only: the track's range on the measured bearing
                     u = np.array([math.cos(d.bearing_rad), math.sin(d.bearing_rad)])
                     r_along = max(float(t.x[:2] @ u), 0.0)
                     d.x_m, d.y_m = float(r_along * u[0]), float(r_along * u[1])

@@ -151,3 +151,17 @@ def test_bad_config():
         DetectorConfig(moving_lambdas=(0.0, 1.2))
     with pytest.raises(ValueError):
         DetectorConfig(scale=3)
+
+
+def test_analysed_area_margins_differ_at_rim_and_hole():
+    """The outer rim loses border_margin_px, the car-body hole only inner_margin_px."""
+    yy, xx = np.mgrid[0:101, 0:101]
+    r = np.hypot(xx - 50, yy - 50)
+    valid = (r >= 20) & (r <= 45)  # annulus: hole 20 px, rim 45 px
+    cfg = DetectorConfig(border_margin_px=8, inner_margin_px=2)
+    area = VehicleDetector._analysed_area(valid, cfg)
+    row = area[50, 50:]  # along +x from the centre
+    inside = np.flatnonzero(row)
+    assert inside.min() in (22, 23)  # hole edge 20 px + 2 px
+    assert inside.max() in (36, 37)  # rim 45 px - 8 px
+    assert not area[~valid].any()

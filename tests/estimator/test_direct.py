@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from functools import cache
 
+import cv2
 import numpy as np
 import pytest
 
@@ -406,3 +407,75 @@ def test_rendered_drive_beats_the_can_prior(short_rendered_drive) -> None:
     Hs = {r.frame: homography(r.x, mount.K0, r.dt_s) for r in recs[1:]}
     rr = road_residuals(d, camera, mount, gt, Hs, frames=list(range(2, len(recs), 3)))
     assert rr["ratio"] < 1.5
+
+
+def _raised_pair(preset: str, t0: float, box: tuple[int, int, int, int], height_m: float):
+    """Frames at t0 and t0 + DT where the pixels of box (u0, v0, w, h) see a textured plane
+    ``height_m`` above the road (a long low wall's top along the road), the rest the road."""
+    camera, mount, angle = _camera(preset)
+    tex, tex_top = RoadTexture(seed=0), RoadTexture(seed=5)
+    a, b = _pose(mount, t0), _pose(mount, t0 + DT)
+    lower = np.eye(4)
+    lower[2, 3] = -height_m  # the raised plane is the road seen from height_m lower
+    u0, v0, w, h = box
+    out = []
+    for p in (a, b):
+        img = render_road(
+            camera, p.T_world_actual, tex, pixel_angle=angle, lod_from=a.T_world_actual
+        )
+        top = render_road(
+            camera,
+            lower @ p.T_world_actual,
+            tex_top,
+            pixel_angle=angle,
+            lod_from=lower @ a.T_world_actual,
+        )
+        img[v0 : v0 + h, u0 : u0 + w] = top[v0 : v0 + h, u0 : u0 + w]
+        out.append(to_uint8(img))
+    return out
+
+
+def test_parallax_marks_a_plane_above_the_road() -> None:
+    """A textured plane 0.5 m above the road (lambda = h / (h - z) = 1.34) beside the car is
+    marked off-road by the plane-parallax test, the road is not; without the test (only the
+    per-pixel residual) less of it is."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    box = (60, 240, 70, 160)  # left of the car, in the road ring
+    f0, f1 = _raised_pair(preset, 0.3, box, 0.5)
+
+    def marked(cfg: DirectConfig) -> tuple[float, float]:
+        est = DirectEstimator(camera, mount, cfg)
+        est.step(f0, 0.3, SPEED * CAN_SCALE)
+        est.step(f1, 0.3 + DT, SPEED * CAN_SCALE)
+        m = est._offroad.astype(bool)  # mask level 1: half resolution
+        u0, v0, w, h = (c // 2 for c in box)
+        inside = np.zeros_like(m)
+        inside[v0 + 2 : v0 + h - 2, u0 + 2 : u0 + w - 2] = True
+        roi = np.zeros(m.size, bool)
+        roi[est.levels[1].roi_idx] = True
+        roi = roi.reshape(m.shape)
+        near = cv2.dilate(inside.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+        return m[inside & roi].mean(), m[roi & ~near].mean()
+
+    with_test, road_with = marked(default_config("omni"))
+    without, _ = marked(default_config("omni", parallax_lambdas=()))
+    print(
+        f"marked: raised plane {with_test:.2f} (residual only {without:.2f}), road {road_with:.3f}"
+    )
+    assert with_test > 0.5
+    assert with_test > without + 0.1
+    assert road_with < 0.05
+
+
+def test_fit_that_contradicts_the_can_is_not_returned() -> None:
+    """A fit whose forward speed is off the CAN by more than the CAN's scale error (the images
+    locked onto a wrong motion, e.g. a sudden yaw traded for speed) is a failure."""
+    img_a, img_b, _ = _pair("omni-near")
+    est, rec = _run("omni-near", img_a, img_b)
+    assert "can-contradiction" not in rec.flags
+    fit = {"done_levels": 4, "n_points": 1000, "n_inliers": 900, "noise_scale": 1.0}
+    assert est._failure(fit) is None
+    est.ekf.x[:3] = -0.1 * est.ekf.x[:3]  # speed reversed: ~-2.7 m/s against a CAN of 27
+    flag, reason = est._failure(fit)
+    assert flag == "can-contradiction" and "contradicts the CAN" in reason
