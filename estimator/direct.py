@@ -17,9 +17,13 @@ For each new frame B (previous frame A)::
            posterior cost is halved (``line_search``)
     a fit that fails, or whose residuals are far above the recent ones, is retried
     once with the manoeuvre covariance added to the prior (abrupt turns, side slip)
+    a fit whose forward speed contradicts the CAN beyond its scale error (the images
+    locked onto a wrong motion, e.g. a sudden yaw traded for speed) is a failure too
     the residual of A compensated onto B marks what the road motion does not explain
-    (objects above the road, vehicles, the ego body): the next pair, where B is A,
-    takes no points there (`_offroad_map`)
+    (objects above the road, vehicles, the ego body), and so does a plane-parallax
+    test (a plane above the road explains the pixels better: posts, rails, kerbs,
+    `_parallax_marks`): the next pair, where B is A, takes no points there
+    (`_offroad_map`)
 
 Points: pixels of A in the road region of interest (valid camera ray, hitting
 the road below the horizon within ``max_range_m`` of the car, not through the
@@ -52,8 +56,8 @@ re-initialises the speed and the yaw rate (flag ``can-reset``).
 Degraded inputs never raise (except a frame of the wrong size, or time not
 increasing: caller errors) and never give a silent number: ``degraded=True``
 with a reason and flags. A dark or saturated frame, a textureless road, too few
-inliers or a poor fit (s² > ``max_noise_scale``: the road did not align, also
-with the manoeuvre prior) give the prior (time update + CAN); a missing CAN
+inliers, a poor fit (s² > ``max_noise_scale``: the road did not align, also
+with the manoeuvre prior) or a fit that contradicts the CAN give the prior (time update + CAN); a missing CAN
 speed (time-updated speed, V covariance inflated) or a time gap (Q grows with
 dt) are flagged and the images still measure.
 """
