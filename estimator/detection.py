@@ -46,12 +46,16 @@ Then, as in the paper: threshold, flat-plane transform into the plan view
 direction of motion (N = 5.0 m: two blobs within 5 m in that direction are one
 vehicle), blobs (connected components), nearby blobs clustered, and the blob
 point nearest the camera taken as on the road (the obstacle map): its
-road-plane position by inverse perspective.
+road-plane position by inverse perspective. The nearest point is that of the
+blob's parts that reach a vehicle's height (`VehicleDetector._tall_parts`); a
+blob without such a part (low structure, e.g. guard-rail posts closed into a
+strip) is no candidate.
 
 Obstacle map where the road is hidden: a blob whose nearest point lies on the
 inner edge of the seen road (the omni camera's car-body mask, ~7.3 m) does not
 show where the vehicle meets the road, only its bearing. Such a detection is
-flagged ``hidden`` and placed on that bearing at ``hidden_range_frac`` of the
+flagged ``hidden`` and placed on that bearing (the middle of the arc along
+which the blob's tall parts meet the edge) at ``hidden_range_frac`` of the
 edge's range; the tracker refines it (bearing-only update).
 
 Ego car (nearly) stopped (displacement over the baseline below
@@ -690,13 +694,17 @@ class VehicleDetector:
         counts = np.bincount(flat[nz], minlength=m)
         idx = np.arange(1, m)
         _, far, cell = self._label_extent(groups, m)
-        # nearest cell of each group, from its tall parts where it has some
+        # nearest cell of each group, from its tall parts
         if tall is not None:
             _, _, cell_t = self._label_extent(np.where(tall > 0, groups, 0), m)
-            cell = np.where(cell_t >= 0, cell_t, cell)
+            # a group without a part that reaches min_height_m is low structure only
+            # (guard-rail posts closed into a strip along the road): not a vehicle
+            cell = cell_t
         boxes = ndimage.find_objects(groups)
         nz_lab = flat[nz]
         nz_edge = self._plan_dist.ravel()[nz] < self._inner_map.ravel()[nz] + cfg.hidden_margin_m
+        # cells of the group's tall parts (the vehicle, not low structure it was closed with)
+        nz_tall = (tall.ravel()[nz] > 0) if tall is not None else np.ones(len(nz), bool)
         out: list[Detection] = []
         for g in idx:
             if counts[g] == 0 or cell[g] < 0:
@@ -709,8 +717,11 @@ class VehicleDetector:
             # apparent height: a point at height z, range d is drawn at d h / (h - z)
             height = self.mount.height_m * (1.0 - rng / max(far[g], rng))
             if hidden:
-                # the blob meets the inner edge along an arc: its middle is the bearing
-                sel = nz[(nz_lab == g) & nz_edge]
+                # the blob meets the inner edge along an arc: its middle is the bearing;
+                # the arc of its tall parts where they reach the edge (low structure, e.g.
+                # guard-rail posts closed into the blob, would pull it along the rail)
+                edge_g = (nz_lab == g) & nz_edge
+                sel = nz[edge_g & nz_tall] if (edge_g & nz_tall).any() else nz[edge_g]
                 if len(sel):
                     b = self._plan_bearing.ravel()[sel]
                     bearing = float(np.arctan2(np.sin(b).mean(), np.cos(b).mean()))

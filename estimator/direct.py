@@ -57,9 +57,10 @@ Degraded inputs never raise (except a frame of the wrong size, or time not
 increasing: caller errors) and never give a silent number: ``degraded=True``
 with a reason and flags. A dark or saturated frame, a textureless road, too few
 inliers, a poor fit (s² > ``max_noise_scale``: the road did not align, also
-with the manoeuvre prior) or a fit that contradicts the CAN give the prior (time update + CAN); a missing CAN
-speed (time-updated speed, V covariance inflated) or a time gap (Q grows with
-dt) are flagged and the images still measure.
+with the manoeuvre prior) or a fit that contradicts the CAN give the prior
+(time update + CAN); a missing CAN speed (time-updated speed, V covariance
+inflated) or a time gap (Q grows with dt) are flagged and the images still
+measure.
 """
 
 from __future__ import annotations

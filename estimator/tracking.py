@@ -57,10 +57,19 @@ is elongated along the bearing: std ``hidden_range_sigma_m`` along it, ``r0
 vᵀ`` with u the unit bearing and v ⟂ u; association, update and births then
 follow the linear filter above with that R.
 
+Extended vehicles. The tracked point is a vehicle's nearest *visible* point;
+close by (body mask) it jumps between the vehicle's front, side and rear. So the
+tracks and detections the point-to-point assignment leaves are assigned again
+against each established track's body: the points ``p + o e_x``, o over one
+vehicle length (`TrackerConfig.vehicle_length_m`) away from the camera along x;
+such a detection updates the track with ``z - o e_x`` (the body point it saw,
+moved back to the tracked point).
+
 Per frame (`Tracker.step`): change of frame and prediction of every track;
 cost matrix ``d²`` with a gate (``d² > gate_chi2`` or ``|ν| > gate_m``: never
-assigned); assignment by `scipy.optimize.linear_sum_assignment`; update of
-assigned tracks; births of tentative tracks from unassigned detections;
+assigned); assignment by `scipy.optimize.linear_sum_assignment`, then of the
+rest against the tracks' bodies; update of assigned tracks; births of tentative
+tracks from unassigned detections;
 confirmation after ``confirm_hits`` hits within the first ``confirm_window``
 frames of a track; deletion after ``delete_after_misses`` consecutive misses
 (or a tentative track that can no longer be confirmed). Ids come from a
@@ -105,6 +114,16 @@ class TrackerConfig:
     # gating: a pair beyond either gate is never assigned
     gate_chi2: float = 9.21  # [-] on d² (chi², 2 dof: 9.21 = 99 %)
     gate_m: float | None = 4.0  # [m] on |ν|; None: no metric gate
+    # extended object: a detection that fails the gates at the track's point may still
+    # be the same vehicle's nearest visible point at another place along its body (a
+    # vehicle alongside: front, side or rear as the body mask hides its ground); it is
+    # gated against the segment of this length along x from the track's point, away
+    # from the camera (both ways while the track is within half of it of x = 0)
+    vehicle_length_m: float = 5.0  # [m] 0: point gating only
+    vehicle_length_step_m: float = 0.5  # [m] spacing of the segment's points
+    # ... for tracks with at least this many hits: the body keeps an established
+    # vehicle's identity, it does not build one from scattered clutter
+    body_min_hits: int = 8  # [frames]
     # bearing-only detections (ground hidden)
     bearing_sigma_rad: float = 0.05  # [rad] σ_β: std of a hidden detection's bearing
     hidden_range_sigma_m: float = 2.0  # [m] σ_a: its std along the bearing (range unknown)
@@ -132,7 +151,13 @@ class TrackerConfig:
                 raise ValueError(f"TrackerConfig.{name} must be finite and >= 0, got {value!r}")
         if self.gate_m is not None:
             check_positive("TrackerConfig.gate_m", self.gate_m)
-        for name in ("confirm_hits", "confirm_window", "delete_after_misses", "max_tracks"):
+        for name in (
+            "confirm_hits",
+            "confirm_window",
+            "delete_after_misses",
+            "max_tracks",
+            "body_min_hits",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"TrackerConfig.{name} must be an int >= 1, got {value!r}")
@@ -428,6 +453,43 @@ class Tracker:
         track.P = 0.5 * (track.P + track.P.T)
         return nu
 
+    def _gated_d2(
+        self, x_prior: np.ndarray, S: np.ndarray, z_all: np.ndarray, bo: np.ndarray
+    ) -> np.ndarray:
+        """(T, N) d² of the detections z_all (N, 2) to the points x_prior (T, 2) with
+        innovation covariances S (T, N, 2, 2); inf beyond either gate."""
+        cfg = self.config
+        nu = z_all[None, :, :] - x_prior[:, None, :]  # (T, N, 2) ν = z - H x⁻
+        # d² = νᵀ S⁻¹ ν
+        d2 = np.einsum("tni,tni->tn", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+        if cfg.gate_m is not None:
+            # metric gate; a hidden detection's range is not known: its range error
+            # counts up to hidden_range_sigma_m less
+            dist = np.linalg.norm(nu, axis=2)
+            for j in np.flatnonzero(bo):
+                ub = z_all[j] / max(float(np.linalg.norm(z_all[j])), 1e-6)
+                along = np.abs(nu[:, j] @ ub)
+                across = np.abs(nu[:, j] @ np.array([-ub[1], ub[0]]))
+                dist[:, j] = np.hypot(np.maximum(along - cfg.hidden_range_sigma_m, 0), across)
+            d2[dist > cfg.gate_m] = np.inf
+        d2[d2 > cfg.gate_chi2] = np.inf
+        return d2
+
+    def _body_offsets(self, x_m: np.ndarray) -> list[tuple[float, np.ndarray]]:
+        """(offset along x [m], (T,) bool: tracks whose body reaches it) for the points
+        of the extended body, nearest first; the body lies away from the camera along
+        x from the track's point x_m (T,), either way within half a length of 0."""
+        L = self.config.vehicle_length_m
+        step = self.config.vehicle_length_step_m
+        if L <= 0:
+            return []
+        n = max(1, int(round(L / step)))
+        out = []
+        for o in np.linspace(step, L, n):
+            out.append((float(-o), x_m < 0.5 * L))  # body behind the point
+            out.append((float(o), x_m > -0.5 * L))  # body ahead of the point
+        return out
+
     def _hidden_cov(self, z: np.ndarray) -> np.ndarray:
         """(2, 2) R of a detection at z whose ground point is hidden (module docstring)."""
         r = max(float(np.hypot(*z)), 1e-3)
@@ -515,39 +577,44 @@ class Tracker:
         rec.track_ids = [t.id for t in self._tracks]
         rec.priors = np.array([t.x for t in self._tracks]).reshape(-1, 4)
 
-        # 2. gated Mahalanobis costs, all pairs at once
+        # 2. gated Mahalanobis costs, all pairs at once; d2_body: the same against the
+        # points of each track's extended body (offset_m along x), for the pairs the
+        # point-to-point assignment leaves
         Rs = [
             self._hidden_cov(z) if b else self._meas_cov(z) for z, b in zip(z_all, bo, strict=True)
         ]
         n_trk = len(self._tracks)
         d2 = np.full((n_trk, n_det), np.inf)
+        d2_body = np.full((n_trk, n_det), np.inf)
+        offset_m = np.zeros((n_trk, n_det))  # [m] along x: where on the body z was seen
         if n_trk and n_det:
             x_prior = np.array([t.x[:2] for t in self._tracks])  # (T, 2)
             P_pos = np.array([t.P[:2, :2] for t in self._tracks])  # (T, 2, 2)
-            nu = z_all[None, :, :] - x_prior[:, None, :]  # (T, N, 2) ν = z - H x⁻
             S = P_pos[:, None] + np.array(Rs)[None]  # (T, N, 2, 2) S = H P⁻ Hᵀ + R
-            # d² = νᵀ S⁻¹ ν
-            d2 = np.einsum("tni,tni->tn", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-            if cfg.gate_m is not None:
-                # metric gate; a hidden detection's range is not known: its range error
-                # counts up to hidden_range_sigma_m less
-                dist = np.linalg.norm(nu, axis=2)
-                for j in np.flatnonzero(bo):
-                    ub = z_all[j] / max(float(np.linalg.norm(z_all[j])), 1e-6)
-                    along = np.abs(nu[:, j] @ ub)
-                    across = np.abs(nu[:, j] @ np.array([-ub[1], ub[0]]))
-                    dist[:, j] = np.hypot(np.maximum(along - cfg.hidden_range_sigma_m, 0), across)
-                d2[dist > cfg.gate_m] = np.inf
-        allowed = d2 <= cfg.gate_chi2
+            d2 = self._gated_d2(x_prior, S, z_all, bo)
+            for o, sel in self._body_offsets(x_prior[:, 0]):
+                d2_o = self._gated_d2(x_prior + np.outer(sel * o, [1.0, 0.0]), S, z_all, bo)
+                better = (d2_o < d2_body) & sel[:, None]
+                d2_body = np.where(better, d2_o, d2_body)
+                offset_m = np.where(better, o, offset_m)
+        allowed = np.isfinite(d2)
         rec.d2 = np.where(allowed, d2, np.inf)
 
-        # 3. assignment and update
+        # 3. assignment (the tracks' points first, then their bodies) and update
         pairs = gated_assignment(np.where(allowed, d2, 0.0), allowed)
+        offset_m[tuple(np.array(pairs, int).reshape(-1, 2).T)] = 0.0
+        body = np.isfinite(d2_body)
+        body[[i for i, _ in pairs]] = False
+        body[[i for i, t in enumerate(self._tracks) if t.hits < cfg.body_min_hits]] = False
+        body[:, [j for _, j in pairs]] = False
+        pairs += gated_assignment(np.where(body, d2_body, 0.0), body)
         assigned_tracks = {i for i, _ in pairs}
         assigned_dets = {j for _, j in pairs}
         for i, j in pairs:
             track = self._tracks[i]
-            rec.innovations[track.id] = self._update(track, z_all[j], Rs[j])
+            # the detection measures the body point at offset_m: the track's point is there
+            z_point = z_all[j] - np.array([offset_m[i, j], 0.0])
+            rec.innovations[track.id] = self._update(track, z_point, Rs[j])
             rec.assignments.append((track.id, j, float(d2[i, j])))
             track.hits += 1
             track.misses = 0

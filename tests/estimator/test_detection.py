@@ -165,3 +165,21 @@ def test_analysed_area_margins_differ_at_rim_and_hole():
     assert inside.min() in (22, 23)  # hole edge 20 px + 2 px
     assert inside.max() in (36, 37)  # rim 45 px - 8 px
     assert not area[~valid].any()
+
+
+def test_blob_without_tall_part_is_not_a_candidate():
+    """A plan blob is a vehicle candidate only through a part that reaches
+    min_height_m (`_tall_parts`): low structure alone (guard-rail posts closed into a
+    strip) gives none; the same blob with a tall part gives one, at its tall part."""
+    cam, mount = load_camera("omni-near")
+    det = VehicleDetector(cam, mount, DetectorConfig())
+    size = det.plan.size
+    plan = np.zeros((size, size), np.uint8)
+    # a block 12-40 m ahead, 3-5 m to the left (road x fwd, y left): tall enough
+    c0, r0 = det.plan.to_pixel([[40.0, 5.0]])[0].astype(int)
+    c1, r1 = det.plan.to_pixel([[12.0, 3.0]])[0].astype(int)
+    plan[r0 : r1 + 1, c0 : c1 + 1] = 255
+    assert det._blobs(plan, np.zeros_like(plan)) == []
+    (cand,) = det._blobs(plan, plan)
+    assert 11.0 < cand.x_m < 13.0 and 2.5 < cand.y_m < 5.5
+    assert not cand.hidden
