@@ -1249,39 +1249,45 @@ class DirectEstimator(EgoMotionEstimator):
         and the road's energy is above the noise. Guard-rails, posts and kerbs far from
         the car move only a pixel or two more than the road there: each pixel's residual
         alone is within the noise, the comparison over a window is not.
+
+        The residuals are sampled at B's gradient maxima (with ``nms``: a quarter of the
+        textured pixels, where the next pair's points come from) and the windowed
+        energies read at every textured pixel. A sample where a hypothesis moves the
+        pixel less than ``parallax_min_px`` farther than the road does (low speed, near
+        the focus of expansion: the two cannot be told apart) keeps the road's residual.
         """
-        cfg, level = self.cfg, self.levels[self._mask_lvl]
+        cfg, lvl = self.cfg, self._mask_lvl
+        level = self.levels[lvl]
         s = float(level.scale)
         hm, wm = level.shape
-        ksize = (0, 0)
+        lmax = B.local_max[lvl]
+        smp = np.flatnonzero(ok & lmax.ravel()[idx] if lmax is not None else ok)
+        sidx, rays = idx[smp], level.roi_rays[tex[smp]]
+        r2_road = np.square(r_road[smp])
 
-        def windowed(r: np.ndarray, use: np.ndarray) -> np.ndarray:
-            num = np.zeros(hm * wm, np.float32)
-            den = np.zeros(hm * wm, np.float32)
-            num[idx[use]] = np.square(r[use])
-            den[idx[use]] = 1.0
-            num = cv2.GaussianBlur(num.reshape(hm, wm), ksize, cfg.parallax_window_px)
-            den = cv2.GaussianBlur(den.reshape(hm, wm), ksize, cfg.parallax_window_px)
-            return (num / np.maximum(den, 1e-6)).ravel()[idx]
+        def blurred(values: np.ndarray) -> np.ndarray:
+            img = np.zeros(hm * wm, np.float32)
+            img[sidx] = values
+            img = cv2.GaussianBlur(img.reshape(hm, wm), (0, 0), cfg.parallax_window_px)
+            return img.ravel()[idx]
 
-        rays = level.roi_rays[tex]
-        better = np.zeros(len(tex), bool)
-        e_road = None
+        den = np.maximum(blurred(np.ones(len(smp), np.float32)), 1e-6)
+        e_road = blurred(r2_road) / den
+        b_val = B.stacks[lvl][0].ravel()[sidx].astype(np.float64)
         w_road = self.camera.project(rays @ np.linalg.inv(homography(self.ekf.x, self.K0, dt)).T)
+        better = np.zeros(len(tex), bool)
         for lam in cfg.parallax_lambdas:
-            H_inv = np.linalg.inv(homography(self.ekf.x, lam * self.K0, dt))
-            P_a = rays @ H_inv.T
-            w_a = self.camera.project(P_a) / s
-            # only where the raised plane moves visibly unlike the road (not at low speed,
-            # not near the focus of expansion): elsewhere the two cannot be told apart
-            apart = np.linalg.norm(w_a - w_road / s, axis=1) > cfg.parallax_min_px
-            ok_l = _in_level(w_a, P_a, self.K0, level.shape) & ok & apart
-            a_l = sample_points(A.stacks[self._mask_lvl][:1], w_a)[:, 0].astype(np.float64)
-            if e_road is None:
-                e_road = windowed(r_road, ok)
-            e_l = windowed(a_l - self._gain * B.stacks[self._mask_lvl][0].ravel()[idx], ok_l)
-            better |= ok_l & (e_l < cfg.parallax_ratio * e_road) & (e_road > noise**2 / 9)
-        return better
+            P_a = rays @ np.linalg.inv(homography(self.ekf.x, lam * self.K0, dt)).T
+            w_a = self.camera.project(P_a)
+            apart = np.sum(np.square(w_a - w_road), axis=1) > (cfg.parallax_min_px * s) ** 2
+            w_a /= s
+            use = _in_level(w_a, P_a, self.K0, level.shape) & apart
+            a_l = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
+            r2 = np.where(use, np.square(a_l - self._gain * b_val), r2_road)
+            e_l = blurred(r2) / den
+            better |= e_l < cfg.parallax_ratio * e_road
+        # the road's residual energy above the noise level s² sigma²
+        return better & ok & (e_road > noise**2 / cfg.snoop_threshold)
 
     def _offroad_map(self, A: _Frame, B: _Frame, dt: float, s2: float) -> np.ndarray:
         """(H_m, W_m) uint8: pixels of frame B that the estimated road motion does not explain.

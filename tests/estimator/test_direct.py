@@ -459,13 +459,14 @@ def test_parallax_marks_a_plane_above_the_road() -> None:
         return m[inside & roi].mean(), m[roi & ~near].mean()
 
     with_test, road_with = marked(default_config("omni"))
-    without, _ = marked(default_config("omni", parallax_lambdas=()))
+    without, road_without = marked(default_config("omni", parallax_lambdas=()))
     print(
-        f"marked: raised plane {with_test:.2f} (residual only {without:.2f}), road {road_with:.3f}"
+        f"marked: raised plane {with_test:.2f} (residual only {without:.2f}), "
+        f"road {road_with:.3f} (residual only {road_without:.3f})"
     )
     assert with_test > 0.5
     assert with_test > without + 0.1
-    assert road_with < 0.05
+    assert road_with < 0.1 and road_with < road_without + 0.03
 
 
 def test_fit_that_contradicts_the_can_is_not_returned() -> None:
