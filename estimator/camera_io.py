@@ -73,6 +73,7 @@ class MountSpec(BaseModel):
     pitch_deg: float = 0.0  # [deg]
     roll_deg: float = 0.0  # [deg]
     base: Literal["omni", "pinhole"] | None = None  # default: the model's kind
+    rear_axle_x_m: float | None = None  # [m] car frame; None: unknown (no kinematic constraint)
 
 
 class HyperbolicSpec(BaseModel):
@@ -121,6 +122,7 @@ class MountOverride(BaseModel):
     pitch_deg: float | None = None
     roll_deg: float | None = None
     base: Literal["omni", "pinhole"] | None = None
+    rear_axle_x_m: float | None = None
 
 
 def _override_model(model: str) -> type[BaseModel]:

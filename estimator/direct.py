@@ -153,6 +153,9 @@ class DirectConfig:
     # of V (forward, lateral, vertical in car axes) for the retry: a manoeuvre is a turn
     # and a side slip; the forward speed stays the CAN's to tell (a wide forward std lets
     # a sudden yaw be traded for speed at low speed)
+    manoeuvre_slip_sigma_mps: float = 0.5  # [m/s] sideways speed of the rear axle for the
+    # retry when the mount knows it (``rear_axle_x_m``): the rest of the sideways speed
+    # follows the yaw rate
     presmooth_sigma_px: float = 0.7  # [px] Gaussian blur of the full-resolution frame
     sigma_intensity: float = 2.0  # [DN] measurement noise of one brightness sample
     sigma_flow_px: float = 0.2  # [px] model/interpolation noise, as a flow error (level px)
@@ -751,6 +754,8 @@ class EgoMotionEstimator:
                 ekf.x, ekf.P = reset_speed(ekf.x, ekf.P, v_can, self.R_car_cam, cfg)
             ekf.fuse_can(v_can)
         self._v_can = v_can if not math.isnan(can) else math.nan
+        if self.mount.lever_arm_m is not None:  # kinematic model: no side slip at the axle
+            self.ekf.fuse_nonholonomic(self.mount.lever_arm_m)
         self.ekf.begin_update()
         extra = self._measure(gray, t_s, dt, flags, reasons, compensate)
         return make_record(
@@ -990,7 +995,11 @@ class DirectEstimator(EgoMotionEstimator):
             flags.append(failure[0])
             reasons.append(failure[1])
             ekf.set_prior(ekf.x_prior, ekf.P_prior)
-        elif cfg.offroad_mask:
+        elif cfg.offroad_mask and not (
+            math.isfinite(usual) and res["noise_scale"] > cfg.retry_noise_ratio * max(usual, 0.25)
+        ):
+            # only a fit at the usual noise level says what is off the road: the
+            # residuals of a poorer one would keep the next pair off the road itself
             self._offroad = self._offroad_map(A, B, dt, res["noise_scale"])
         res.pop("done_levels")
         return res
@@ -1002,6 +1011,17 @@ class DirectEstimator(EgoMotionEstimator):
         Rc = self.R_car_cam
         Q[V_SLICE, V_SLICE] = Rc.T @ np.diag(np.square(cfg.manoeuvre_V_sigma_mps)) @ Rc
         Q[W_SLICE, W_SLICE] = np.eye(3) * cfg.manoeuvre_W_sigma_rps**2
+        lever = self.mount.lever_arm_m
+        if lever is not None:
+            # kinematic model: a turn moves the viewpoint sideways by lever x yaw rate; the
+            # slip at the rear axle is the small part, manoeuvre_slip_sigma_mps
+            slip = np.square(np.array(cfg.manoeuvre_V_sigma_mps, float))
+            slip[1] = cfg.manoeuvre_slip_sigma_mps**2
+            G = np.zeros((N_STATE, 3))  # car-frame W -> state (W and the coupled V)
+            G[W_SLICE] = Rc.T
+            G[V_SLICE] = Rc.T @ np.outer([0.0, lever, 0.0], [0.0, 0.0, 1.0])
+            Q = G @ (np.eye(3) * cfg.manoeuvre_W_sigma_rps**2) @ G.T
+            Q[V_SLICE, V_SLICE] += Rc.T @ np.diag(slip) @ Rc
         return Q
 
     def _failure(self, res: dict[str, Any]) -> tuple[str, str] | None:
@@ -1168,6 +1188,10 @@ class DirectEstimator(EgoMotionEstimator):
         dirs = np.zeros((2, N_STATE))
         dirs[0, V_SLICE] = x0[V_SLICE]  # d x / d (relative speed scale)
         dirs[1, W_SLICE] = n  # d x / d (yaw rate about the road normal) [rad/s]
+        lever = self.mount.lever_arm_m
+        if lever is not None:  # kinematic model: the viewpoint slides with the yaw rate
+            yaw_per_n = float((self.R_car_cam @ n)[2])  # car yaw rate per unit along n
+            dirs[1, V_SLICE] = self.R_car_cam.T @ np.array([0.0, lever * yaw_per_n, 0.0])
         # prior std of the coefficient along each direction: sqrt(dᵀ P⁻ d) / |d|²
         dPd = np.einsum("ij,jk,ik->i", dirs, ekf.P_prior, dirs)
         sig = np.sqrt(np.maximum(dPd, 0.0)) / np.maximum(np.sum(dirs**2, axis=1), 1e-24)

@@ -72,6 +72,8 @@ class FilterConfig:
     # CAN speed (a pseudo-measurement of the forward speed, `can_speed_update`)
     can_rel_sigma: float = 0.12  # [-] relative std: a 10 % scale error stays correctable
     can_abs_sigma_mps: float = 0.3  # [m/s] absolute std (noise, quantisation)
+    nonholonomic_sigma_mps: float = 0.2  # [m/s] sideways speed of the rear axle (tyre
+    # slip) in the kinematic pseudo-measurement (`nonholonomic_update`); <= 0: off
     can_gate_rel: float = 0.3  # [-] a CAN speed that disagrees with the predicted forward
     # speed by more than this fraction (plus 3 sigma) means the state is lost: V and the
     # yaw rate are re-initialised from the CAN (`can_consistent`); <= 0: never
@@ -146,6 +148,37 @@ def time_update(
     return B @ x, _sym(B @ P @ B.T + Q)
 
 
+def scalar_update(
+    x: np.ndarray, P: np.ndarray, h: np.ndarray, z: float, var: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman update with one linear measurement ``z = h x + e``, ``e ~ N(0, var)``."""
+    Ph = P @ h
+    k = Ph / (float(h @ Ph) + var)
+    return x + k * (z - float(h @ x)), _sym(P - np.outer(k, Ph))
+
+
+def nonholonomic_row(lever_m: float, R_car_cam: np.ndarray) -> np.ndarray:
+    """(9,) h with ``h x`` = the rear axle's sideways speed [m/s] (`nonholonomic_update`)."""
+    h = np.zeros(N_STATE)
+    h[V_SLICE] = R_car_cam[1]
+    h[W_SLICE] = -lever_m * R_car_cam[2]
+    return h
+
+
+def nonholonomic_update(
+    x: np.ndarray, P: np.ndarray, lever_m: float, R_car_cam: np.ndarray, sigma_mps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-measurement of the kinematic vehicle model: the rear axle does not slide.
+
+    A rigid car whose rear axle r moves straight ahead moves the viewpoint p sideways
+    at ``v_lat(p) = yaw_rate * (p_x - r_x)`` (v(p) = v(r) + W x (p - r)). Measured:
+    ``(R_car_cam V)[1] - lever_m (R_car_cam W)[2] = 0`` with std ``sigma_mps``. It ties
+    the sideways speed to the yaw rate, two motions that a narrow view (or a slow car)
+    hardly tells apart.
+    """
+    return scalar_update(x, P, nonholonomic_row(lever_m, R_car_cam), 0.0, sigma_mps**2)
+
+
 def can_speed_update(
     x: np.ndarray, P: np.ndarray, v_can_mps: float, R_car_cam: np.ndarray, cfg: FilterConfig
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -158,11 +191,7 @@ def can_speed_update(
     h = np.zeros(N_STATE)
     h[V_SLICE] = R_car_cam[0]
     var = (cfg.can_rel_sigma * abs(v_can_mps) + cfg.can_abs_sigma_mps) ** 2
-    Ph = P @ h
-    s = float(h @ Ph) + var
-    k = Ph / s
-    x_new = x + k * (v_can_mps - float(h @ x))
-    return x_new, _sym(P - np.outer(k, Ph))
+    return scalar_update(x, P, h, v_can_mps, var)
 
 
 def can_consistent(
@@ -291,6 +320,13 @@ class IteratedEKF:
     def fuse_can(self, v_can_mps: float) -> None:
         """CAN forward speed as a measurement (`can_speed_update`)."""
         self.x, self.P = can_speed_update(self.x, self.P, v_can_mps, self.R_car_cam, self.cfg)
+
+    def fuse_nonholonomic(self, lever_m: float) -> None:
+        """The rear axle does not slide sideways (`nonholonomic_update`), when configured."""
+        if self.cfg.nonholonomic_sigma_mps > 0:
+            self.x, self.P = nonholonomic_update(
+                self.x, self.P, lever_m, self.R_car_cam, self.cfg.nonholonomic_sigma_mps
+            )
 
     def inflate(self, factor: float) -> None:
         """Multiply P by factor (>= 1): less trust in the prior after a degraded step."""

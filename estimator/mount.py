@@ -34,6 +34,10 @@ class CameraMount:
     position_m: viewpoint in the car frame [m]; z is its height above the road.
     yaw_deg, pitch_deg, roll_deg: rotation of the camera's base axes [deg].
     base: ``"omni"`` or ``"pinhole"`` (see module docstring).
+    rear_axle_x_m: x of the car's rear axle in the car frame [m], the point of the car
+    that does not slide sideways (kinematic vehicle model); None when unknown. With it
+    the estimators know that the viewpoint moves sideways at the yaw rate times its
+    lever arm (`estimator.iekf.nonholonomic_update`).
     """
 
     position_m: tuple[float, float, float] = (0.0, 0.0, 1.95)
@@ -41,6 +45,7 @@ class CameraMount:
     pitch_deg: float = 0.0
     roll_deg: float = 0.0
     base: str = "omni"
+    rear_axle_x_m: float | None = None
     _R: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -51,6 +56,8 @@ class CameraMount:
             raise ValueError(f"mount position_m must be 3 finite numbers, got {self.position_m!r}")
         if pos[2] <= 0:
             raise ValueError(f"mount height position_m[2] must be > 0 m, got {pos[2]}")
+        if self.rear_axle_x_m is not None and not np.isfinite(self.rear_axle_x_m):
+            raise ValueError(f"mount rear_axle_x_m must be finite, got {self.rear_axle_x_m!r}")
         R = (
             rot_z(np.radians(self.yaw_deg))
             @ rot_y(np.radians(self.pitch_deg))
@@ -63,6 +70,13 @@ class CameraMount:
     def height_m(self) -> float:
         """Viewpoint height above the (flat) road [m]."""
         return float(self.position_m[2])
+
+    @property
+    def lever_arm_m(self) -> float | None:
+        """Viewpoint x minus rear-axle x in the car frame [m] (None: axle unknown)."""
+        if self.rear_axle_x_m is None:
+            return None
+        return float(self.position_m[0]) - float(self.rear_axle_x_m)
 
     @property
     def R_car_cam(self) -> np.ndarray:
@@ -91,4 +105,5 @@ class CameraMount:
             "pitch_deg": float(self.pitch_deg),
             "roll_deg": float(self.roll_deg),
             "base": self.base,
+            **({} if self.rear_axle_x_m is None else {"rear_axle_x_m": float(self.rear_axle_x_m)}),
         }

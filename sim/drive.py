@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -43,7 +43,7 @@ from sim.camera_motion import (
 )
 from sim.can import can_at, can_messages
 from sim.gl import pyrender
-from sim.highway import WorldFrame, simulate
+from sim.highway import EGO_REAR_AXLE_X_M, WorldFrame, simulate
 from sim.renderer import OmniRenderer
 from sim.scene import build_static_scene, decode_id_image, vehicle_corners_world, vehicles_mesh
 from sim.sensor import SensorModel, apply_sensor, gain_sequence, vignetting_gain
@@ -329,6 +329,8 @@ def prepare_drive(
 ) -> DriveRenderer:
     """Simulate the scenario's traffic and set up its renderer."""
     camera, mount = resolve_camera(scenario.camera)
+    if mount.rear_axle_x_m is None:  # the ego car's geometry goes with the recording
+        mount = replace(mount, rear_axle_x_m=EGO_REAR_AXLE_X_M)
     n = scenario.n_frames if max_frames is None else min(scenario.n_frames, max_frames)
     frames, road = simulate(
         scenario.env,

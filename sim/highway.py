@@ -65,6 +65,7 @@ import gymnasium  # noqa: E402
 import highway_env  # noqa: E402, F401  (importing registers the highway-env ids)
 from highway_env.road.lane import CircularLane, LineType, SineLane, StraightLane  # noqa: E402
 from highway_env.vehicle.behavior import IDMVehicle  # noqa: E402
+from highway_env.vehicle.kinematics import Vehicle  # noqa: E402
 
 EGO_POLICIES = ("idm", "keep-lane")
 
@@ -73,6 +74,10 @@ HEIGHT_RANGE_M = (1.4, 1.7)
 #: The ego car's roof height [m]: the omni presets put the mirror's viewpoint
 #: 0.45 m above a 1.5 m roof (the paper's first test run).
 EGO_HEIGHT_M = 1.5
+#: x of the ego car's rear axle in the car frame [m]: highway-env's kinematic bicycle
+#: model (slip angle beta at the centre, heading rate v sin(beta) / (L/2)) moves the point
+#: L/2 behind the centre straight ahead, so it is the point that does not slide sideways.
+EGO_REAR_AXLE_X_M = -0.5 * Vehicle.LENGTH
 
 #: Sample spacing along curved lanes [m] and the largest along straight lanes [m].
 CURVE_STEP_M = 1.0

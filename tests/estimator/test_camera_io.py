@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,19 @@ def test_save_load_round_trip(tmp_path, name):
     save_camera(path, cam.replace(fu=cam.fu * 2), mount)  # overwrite in place
     assert load_camera(path)[0].fu == cam.fu * 2
     assert sorted(p.name for p in path.parent.iterdir()) == ["camera.yaml"]  # no temp files left
+
+
+def test_rear_axle_round_trip(tmp_path):
+    """The optional rear axle (kinematic constraint) is saved only when known."""
+    cam, mount = load_camera("omni-near")
+    assert mount.rear_axle_x_m is None and mount.lever_arm_m is None
+    assert "rear_axle_x_m" not in mount.to_dict()
+    with_axle = replace(mount, rear_axle_x_m=-2.5)
+    assert with_axle.lever_arm_m == pytest.approx(2.5)
+    path = save_camera(tmp_path / "camera.yaml", cam, with_axle)
+    assert load_camera(path) == (cam, with_axle)
+    with pytest.raises(ValueError, match="rear_axle_x_m"):
+        replace(mount, rear_axle_x_m=float("nan"))
 
 
 def test_save_refuses_mismatched_mount(tmp_path):

@@ -199,3 +199,30 @@ def test_filter_class_cycle() -> None:
     assert np.all(np.diag(ekf.P) <= np.diag(ekf.P_prior) + 1e-12)
     with pytest.raises(ValueError, match=r"shape \(9,\)"):
         ekf.set_prior(np.zeros(3), np.eye(3))
+
+
+def test_nonholonomic_update_ties_the_sideways_speed_to_the_yaw_rate() -> None:
+    """The kinematic pseudo-measurement: the rear axle does not slide, so the viewpoint
+    (lever_m ahead of it) slides at yaw_rate x lever_m; the update removes the mismatch in
+    proportion to the prior's variances and matches the textbook scalar Kalman update."""
+    from estimator.iekf import nonholonomic_row, nonholonomic_update, scalar_update
+
+    mount = CameraMount(position_m=(0.3, 0.95, 1.2), yaw_deg=160, pitch_deg=15, base="pinhole")
+    Rc, lever = mount.R_car_cam, 2.8
+    x = np.zeros(9)
+    x[0:3] = Rc.T @ np.array([20.0, -0.5, 0.0])  # 0.5 m/s sideways, no yaw: inconsistent
+    P = np.diag([1.0, 1.0, 1.0, 0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4])
+    h = nonholonomic_row(lever, Rc)
+    assert h @ x == pytest.approx(-0.5)  # the axle's sideways speed
+    x1, P1 = nonholonomic_update(x, P, lever, Rc, sigma_mps=0.01)
+    assert abs(h @ x1) < 0.01  # now consistent
+    v1, w1 = Rc @ x1[0:3], Rc @ x1[3:6]
+    assert v1[1] == pytest.approx(lever * w1[2], abs=0.01)
+    assert v1[1] > -0.5 and w1[2] < 0  # both moved: sideways speed less, a right turn
+    assert np.all(np.linalg.eigvalsh(P1) > 0) and np.trace(P1) < np.trace(P)
+    # the same as the Kalman update of filterpy with H = h, R = sigma²
+    kf = KalmanFilter(dim_x=9, dim_z=1)
+    kf.x, kf.P, kf.H, kf.R = x.copy(), P.copy(), h[None, :], np.array([[1e-4]])
+    kf.update(np.array([0.0]))
+    assert np.allclose(kf.x, x1) and np.allclose(kf.P, P1)
+    assert np.allclose(scalar_update(x, P, h, 0.0, 1e-4)[0], x1)

@@ -93,6 +93,7 @@ def test_ground_truth_homography_aligns_the_road(drive_dir):
     from scenarios.road_residual import road_residuals
 
     cam, mount = load_camera(drive_dir / "camera.yaml")
+    assert mount.rear_axle_x_m == pytest.approx(-2.5)  # highway-env's no-slip point (L/2)
     gt = load_groundtruth(drive_dir)
     Hs = {k: np.asarray(gt[k]["motion_from_prev"]["H"]) for k in range(1, N)}
     r = road_residuals(drive_dir, cam, mount, gt, Hs)

@@ -1,0 +1,43 @@
+"""Regression test on detection recall: the `smoke` suite against its committed baseline.
+
+Runs scenarios/suites/smoke.yaml for real (12 short jobs: render, estimate, detect, track;
+~2-3 minutes on 2 cores) and fails, naming the job, the metric and the delta, when recall,
+precision, MOTA or the speed RMSE is worse than scenarios/baselines/smoke.json by more than
+`TOLERANCE`. A change that makes them worse on purpose updates the baseline on purpose:
+``omnibench suite scenarios/suites/smoke.yaml --out DIR && omnibench baseline update DIR``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from scenarios.regression import BASELINE_METRICS, Tolerance, check_baseline
+from scenarios.suite import load_suite
+from scenarios.suite_runner import run_suite
+
+# worse by more than 5 % of the baseline value (and 0.005 absolute) is a regression
+TOLERANCE = Tolerance(rel=0.05, abs_=0.005)
+
+
+def test_smoke_suite_holds_its_baseline(tmp_path: Path) -> None:
+    run_dir = tmp_path / "smoke"
+    res = run_suite(
+        load_suite("smoke"),
+        run_dir,
+        workers=2,
+        history=tmp_path / "history.sqlite",
+        cache_dir=tmp_path / "cache",
+        progress=False,
+    )
+    errors = [f"{o.job.label}: {o.error}" for o in res.outcomes if o.status != "ok"]
+    assert not errors, "smoke jobs failed:\n" + "\n".join(errors)
+    cmp = check_baseline(run_dir, TOLERANCE)
+    assert not cmp.only_base, f"baseline jobs not run: {cmp.only_base}"
+    assert len(cmp.deltas) == len(BASELINE_METRICS) * len(res.outcomes)
+    problems = [d.describe() for d in cmp.regressions] + [
+        f"{label}: failed: {err}" for _, label, err in cmp.failed
+    ]
+    assert cmp.ok, (
+        f"{len(problems)} regression(s) against scenarios/baselines/smoke.json "
+        f"({TOLERANCE.describe()}):\n" + "\n".join(problems)
+    )
