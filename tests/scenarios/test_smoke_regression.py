@@ -15,8 +15,10 @@ from scenarios.regression import BASELINE_METRICS, Tolerance, check_baseline
 from scenarios.suite import load_suite
 from scenarios.suite_runner import run_suite
 
-# worse by more than 5 % of the baseline value (and 0.005 absolute) is a regression
-TOLERANCE = Tolerance(rel=0.05, abs_=0.005)
+# worse by more than 5 % of the baseline value and by more than 0.05 (absolute: one
+# detection of the ~29 per drive moves recall by 0.034, renders of another CPU may
+# differ by a pixel here and there) is a regression
+TOLERANCE = Tolerance(rel=0.05, abs_=0.05)
 
 
 def test_smoke_suite_holds_its_baseline(tmp_path: Path) -> None:
