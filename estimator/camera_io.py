@@ -7,6 +7,7 @@ mount (`estimator.mount.CameraMount`)::
     a: 0.04                      # constructor arguments of HyperbolicCamera / PinholeCamera
     ...
     mount: {position_m: [0, 0, 1.95], yaw_deg: 0, pitch_deg: 0, roll_deg: 0, base: omni}
+    # optional in mount: rear_axle_x_m: -2.5  (the car's no-slip point, car frame [m])
 
 Constructor arguments left out take the constructor's defaults; ``mount`` may be
 left out (``CameraMount`` defaults) and ``mount.base`` defaults to the model's
