@@ -80,6 +80,7 @@ def suite(
         raise typer.Exit(130) from None
     n_err = sum(o.status == "error" for o in res.outcomes)
     n_fail = sum(o.status == "ok" and not o.passed for o in res.outcomes)
+    print(results_table(res.outcomes))
     console.print(
         f"run {res.run_id}: {len(res.outcomes)} jobs ({res.ran} run now, {res.skipped} done "
         f"before, {res.recorded_from_disk} recorded from disk, {res.renders} renders) in "
@@ -133,6 +134,22 @@ def history_cmd(
     ]
     heads = ["run id", "suite", "started (UTC)", "commit", "ok", "failed", "jobs", "finished"]
     print(_plain_table(heads, rows))
+
+
+def results_table(outcomes: list) -> str:
+    """One row per job (`scenarios.suite_report.Outcome`): its label, status and the
+    report's metrics (`TABLE_METRICS`; nan: not measured, e.g. no vehicle in range)."""
+    from scenarios.suite_report import TABLE_METRICS
+
+    rows = []
+    for o in outcomes:
+        status = o.status if o.status != "ok" else ("ok" if o.passed else "threshold")
+        cells = []
+        for key, _ in TABLE_METRICS:
+            v = o.metrics.get(key) if o.metrics else None
+            cells.append("-" if v is None else ("nan" if v != v else f"{v:.4g}"))
+        rows.append([o.job.label, status, *cells])
+    return _plain_table(["job", "status", *(h for _, h in TABLE_METRICS)], rows)
 
 
 def _plain_table(heads: list[str], rows: list[list[str]]) -> str:

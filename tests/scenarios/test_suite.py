@@ -239,6 +239,10 @@ def test_tiny_suite_end_to_end(tiny_run):
     d, proc = tiny_run
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "2 run now" in proc.stderr and "1 renders" in proc.stderr
+    # the results table: a header and one row per job with its metrics
+    table = [ln for ln in proc.stdout.splitlines() if "tiny-drive |" in ln]
+    assert "speed RMSE [%]" in proc.stdout and "recall" in proc.stdout and len(table) == 2
+    assert all(" ok " in ln and "nan" not in ln.split(" ok ")[1].split()[0] for ln in table)
     run = d / "run"
     db = d / "h.sqlite"
     rows = _history_rows(db)
