@@ -663,6 +663,33 @@ class VehicleDetector:
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
 
     @staticmethod
+    def _energies(
+        a: np.ndarray, warped: dict[float, np.ndarray], ok: np.ndarray, K: float, box: bool
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, Callable]:
+        """(min_static E, min_moving E or None, <|g|^2>, the window average) over ok.
+
+        E_lambda = <(a - I_lambda)^2>; <.>: Gaussian window K [px] (``box``: K x K box).
+        """
+        okf = ok.astype(np.float32)
+        kk = int(K)
+
+        def avg(z: np.ndarray) -> np.ndarray:
+            return cv2.blur(z, (kk, kk)) if box else _gauss(z, K)
+
+        E_mov = E_sta = None
+        for lam, w in warped.items():
+            d = (a - w) * okf
+            e = avg(d * d)
+            if lam < 1.0:
+                E_mov = e if E_mov is None else np.minimum(E_mov, e)
+            else:
+                E_sta = e if E_sta is None else np.minimum(E_sta, e)
+        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        G2 = avg((gu * gu + gv * gv) * okf)
+        return E_sta, E_mov, G2, avg
+
+    @staticmethod
     def _score(
         a: np.ndarray,
         warped: dict[float, np.ndarray],
@@ -676,25 +703,9 @@ class VehicleDetector:
 
         <.>: Gaussian window K [px] (``box``: a K x K box).
         """
-        okf = ok.astype(np.float32)
-        kk = int(K)
-
-        def avg(z: np.ndarray, _K: float) -> np.ndarray:
-            return cv2.blur(z, (kk, kk)) if box else _gauss(z, _K)
-
-        E_mov = E_sta = None
-        for lam, w in warped.items():
-            d = (a - w) * okf
-            e = avg(d * d, K)
-            if lam < 1.0:
-                E_mov = e if E_mov is None else np.minimum(E_mov, e)
-            else:
-                E_sta = e if E_sta is None else np.minimum(E_sta, e)
-        sep = (warped[1.0] - warped[0.0]) * okf
-        S = avg(sep * sep, K)
-        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-        G2 = avg((gu * gu + gv * gv) * okf, K)
+        E_sta, E_mov, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
+        sep = (warped[1.0] - warped[0.0]) * ok.astype(np.float32)
+        S = avg(sep * sep)
         m = (E_sta - E_mov) / (S + k + G2 * sigma * sigma)
         m[~ok] = 0.0
         return m
@@ -709,16 +720,7 @@ class VehicleDetector:
         sigma: float,
     ) -> np.ndarray:
         """r = min_static E / (k + <|g|^2> sigma^2), 0 outside ok (Gaussian window K [px])."""
-        okf = ok.astype(np.float32)
-        E_sta = None
-        for lam, w in warped.items():
-            if lam >= 1.0:
-                d = (a - w) * okf
-                e = _gauss(d * d, K)
-                E_sta = e if E_sta is None else np.minimum(E_sta, e)
-        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-        G2 = _gauss((gu * gu + gv * gv) * okf, K)
+        E_sta, _, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False)
         r = E_sta / (k + G2 * sigma * sigma)
         r[~ok] = 0.0
         return r

@@ -243,27 +243,34 @@ def test_motion_outside_the_priors_reach_is_flagged_not_returned() -> None:
     assert found or ("poor-fit" in rec.flags and np.array_equal(rec.x, rec.x_prior))
 
 
-def test_manoeuvre_retry_follows_an_abrupt_turn() -> None:
-    """A yaw rate of 70 deg/s from a prior of 0 (the simulator's abrupt steering steps):
-    out of the random walk's reach, found by the retry with the manoeuvre prior."""
-    preset = "omni-near"
-    camera, mount, angle = _camera(preset)
-    speed, yaw_rate, t0 = 10.0, 1.2, 0.3
+def _turn_pair(camera, mount, angle, speed, yaw_rate, t0, lever_m=0.0):
+    """(A, B) uint8 frames and the true motion of a car turning on a circle at yaw_rate
+    [rad/s]: its point lever_m [m] behind the car origin (the rear axle) moves at speed."""
 
     def pose(t: float):
         yaw = yaw_rate * t
-        x, y = speed / yaw_rate * np.sin(yaw), speed / yaw_rate * (1 - np.cos(yaw))
+        ax, ay = speed / yaw_rate * np.sin(yaw), speed / yaw_rate * (1 - np.cos(yaw))
+        x, y = ax + lever_m * np.cos(yaw), ay + lever_m * np.sin(yaw)
         return camera_pose(T_world_car(x, y, yaw), mount, Vibration(0.3, 2.0, 0.4, 1.3), t)
 
     a, b = pose(t0), pose(t0 + DT)
     tex = RoadTexture(seed=3)
     img_a = render_road(camera, a.T_world_actual, tex, pixel_angle=angle, lod_from=a.T_world_actual)
     img_b = render_road(camera, b.T_world_actual, tex, pixel_angle=angle, lod_from=a.T_world_actual)
-    ms = motion_between(a, b, DT)
+    return to_uint8(img_a), to_uint8(img_b), motion_between(a, b, DT)
+
+
+def test_manoeuvre_retry_follows_an_abrupt_turn() -> None:
+    """A yaw rate of 70 deg/s from a prior of 0 (the simulator's abrupt steering steps):
+    out of the random walk's reach, found by the retry with the manoeuvre prior."""
+    preset = "omni-near"
+    camera, mount, angle = _camera(preset)
+    speed, yaw_rate, t0 = 10.0, 1.2, 0.3
+    img_a, img_b, ms = _turn_pair(camera, mount, angle, speed, yaw_rate, t0)
     x_true = make_state(ms.V_mps, ms.W_rps, ms.A_rad)
     # W's prior std as in steady state (~1.5 deg/s): the turn is 45 sigma away
     tight = default_config("omni", filter={"W0_sigma_rps": 0.025})
-    _, rec = _run(preset, to_uint8(img_a), to_uint8(img_b), t0=t0, can=speed, config=tight)
+    _, rec = _run(preset, img_a, img_b, t0=t0, can=speed, config=tight)
     assert "manoeuvre" in rec.flags and not rec.degraded, rec.flags
     assert rec.yaw_rate_rps == pytest.approx(yaw_rate, abs=np.radians(1.0))
     assert _errors(rec, x_true)[0] < 2.0
@@ -491,26 +498,15 @@ def test_manoeuvre_with_side_slip_and_the_kinematic_constraint() -> None:
     camera, mount0, angle = _camera(preset)
     mount = replace(mount0, rear_axle_x_m=-2.5)
     speed, yaw_rate, t0, lever = 9.0, 1.2, 0.3, 2.5
-
-    def pose(t: float):
-        yaw = yaw_rate * t  # the rear axle on a circle, the car origin lever ahead of it
-        ax, ay = speed / yaw_rate * np.sin(yaw), speed / yaw_rate * (1 - np.cos(yaw))
-        x, y = ax + lever * np.cos(yaw), ay + lever * np.sin(yaw)
-        return camera_pose(T_world_car(x, y, yaw), mount, Vibration(0.3, 2.0, 0.4, 1.3), t)
-
-    a, b = pose(t0), pose(t0 + DT)
-    tex = RoadTexture(seed=3)
-    img_a = render_road(camera, a.T_world_actual, tex, pixel_angle=angle, lod_from=a.T_world_actual)
-    img_b = render_road(camera, b.T_world_actual, tex, pixel_angle=angle, lod_from=a.T_world_actual)
-    ms = motion_between(a, b, DT)
+    img_a, img_b, ms = _turn_pair(camera, mount, angle, speed, yaw_rate, t0, lever_m=lever)
     v_true = mount.R_car_cam @ ms.V_mps
     # the camera slides: lever x yaw rate, plus the chord's turn over the frame (V is the
     # mean velocity in frame A's axes; the constraint leaves that to its sigma)
     assert v_true[1] == pytest.approx(lever * yaw_rate + speed * yaw_rate * DT / 2, rel=0.02)
     tight = default_config("omni", filter={"W0_sigma_rps": 0.025})
     est = DirectEstimator(camera, mount, tight)
-    est.step(to_uint8(img_a), t0, speed)
-    rec = est.step(to_uint8(img_b), t0 + DT, speed)
+    est.step(img_a, t0, speed)
+    rec = est.step(img_b, t0 + DT, speed)
     assert "manoeuvre" in rec.flags and not rec.degraded, rec.flags
     assert rec.yaw_rate_rps == pytest.approx(yaw_rate, abs=np.radians(1.0))
     v_est = mount.R_car_cam @ rec.V
