@@ -735,6 +735,7 @@ class EgoMotionEstimator:
             self._dts = (self._dts + [dt])[-15:]
         # eq. 19: time update (Q grows with dt)
         self.ekf.predict(dt)
+        self._v_can = math.nan
         if math.isnan(can):
             flags.append("can-missing")
             reasons.append("CAN speed missing: time-updated speed used, V covariance inflated")
@@ -753,7 +754,7 @@ class EgoMotionEstimator:
                 )
                 ekf.x, ekf.P = reset_speed(ekf.x, ekf.P, v_can, self.R_car_cam, cfg)
             ekf.fuse_can(v_can)
-        self._v_can = v_can if not math.isnan(can) else math.nan
+            self._v_can = v_can
         if self.mount.lever_arm_m is not None:  # kinematic model: no side slip at the axle
             self.ekf.fuse_nonholonomic(self.mount.lever_arm_m)
         self.ekf.begin_update()
