@@ -188,20 +188,12 @@ class FrameCompensator:
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=0,
         )
-        if not with_valid:
-            return out, None
-        ok = (
-            cv2.remap(
-                self._level(scale)["valid_u8"],
-                mx,
-                my,
-                cv2.INTER_NEAREST,
-                borderMode=cv2.BORDER_CONSTANT,
-                borderValue=0,
-            )
-            > 0
-        )
-        return out, ok
+        return out, (self.sampled_in_view(mx, my, scale) if with_valid else None)
+
+    def sampled_in_view(self, mx: np.ndarray, my: np.ndarray, scale: int = 1) -> np.ndarray:
+        """(H/s, W/s) bool: pixels whose maps (`maps_h`) sample inside the source's view."""
+        valid = self._level(scale)["valid_u8"]
+        return cv2.remap(valid, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT) > 0
 
     def maps(self, x: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(H, W) float32 map_x, map_y into the previous frame for the state x (9,)."""

@@ -470,17 +470,7 @@ class VehicleDetector:
                 earlier, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
             )
             if key:
-                ok &= (
-                    cv2.remap(
-                        self.comp._level(s)["valid_u8"],
-                        mx,
-                        my,
-                        cv2.INTER_NEAREST,
-                        borderMode=cv2.BORDER_CONSTANT,
-                        borderValue=0,
-                    )
-                    > 0
-                )
+                ok &= self.comp.sampled_in_view(mx, my, s)
         a = np.asarray(current, np.float32)
         # 2. motion score at the working scale and one level coarser
         K = cfg.window_px / s

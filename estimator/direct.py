@@ -962,12 +962,7 @@ class DirectEstimator(EgoMotionEstimator):
         self._offroad = None
         res = self._coarse_to_fine(A, B, dt, excl)
         failure = self._failure(res)
-        usual = float(np.median(self._s2_hist)) if len(self._s2_hist) >= 3 else math.nan
-        surprising = (
-            failure is None
-            and math.isfinite(usual)
-            and res["noise_scale"] > cfg.retry_noise_ratio * max(usual, 0.25)
-        )
+        surprising = failure is None and self._unusual_noise(res["noise_scale"])
         if cfg.manoeuvre_retry and (
             surprising
             or (
@@ -990,20 +985,27 @@ class DirectEstimator(EgoMotionEstimator):
             else:
                 flags.append("manoeuvre")  # a fit, not a fallback: the record is not degraded
                 failure = None
+        unusual = self._unusual_noise(res["noise_scale"])  # before this fit joins the history
         if failure is None:
             self._s2_hist = (self._s2_hist + [res["noise_scale"]])[-15:]
         if failure:
             flags.append(failure[0])
             reasons.append(failure[1])
             ekf.set_prior(ekf.x_prior, ekf.P_prior)
-        elif cfg.offroad_mask and not (
-            math.isfinite(usual) and res["noise_scale"] > cfg.retry_noise_ratio * max(usual, 0.25)
-        ):
+        elif cfg.offroad_mask and not unusual:
             # only a fit at the usual noise level says what is off the road: the
             # residuals of a poorer one would keep the next pair off the road itself
             self._offroad = self._offroad_map(A, B, dt, res["noise_scale"])
         res.pop("done_levels")
         return res
+
+    def _unusual_noise(self, s2: float) -> bool:
+        """A fit's noise scale s² more than ``retry_noise_ratio`` times the median of the
+        recent good fits (False until there are 3 of them)."""
+        if len(self._s2_hist) < 3:
+            return False
+        usual = float(np.median(self._s2_hist))
+        return s2 > self.cfg.retry_noise_ratio * max(usual, 0.25)
 
     def _manoeuvre_cov(self) -> np.ndarray:
         """(9, 9) covariance added to the prior for the manoeuvre retry (camera axes)."""
@@ -1260,11 +1262,17 @@ class DirectEstimator(EgoMotionEstimator):
         dt: float,
         tex: np.ndarray,
         idx: np.ndarray,
+        w_road: np.ndarray,
+        b_val: np.ndarray,
         r_road: np.ndarray,
         ok: np.ndarray,
         noise: float,
     ) -> np.ndarray:
         """(len(tex),) bool: textured pixels of B that a plane above the road explains better.
+
+        From `_offroad_map`, per textured ROI pixel of B at the mask level: w_road (N, 2)
+        where the road hypothesis finds it in A [level px], b_val (N,) its brightness in
+        B, r_road (N,) the road's residual, ok (N,) usable.
 
         Plane + parallax: a static point at height z moves in the image like the plane
         ``K = lambda K0`` with ``lambda = h / (h - z)`` (eq. 3-4 with the plane moved up).
@@ -1288,7 +1296,7 @@ class DirectEstimator(EgoMotionEstimator):
         lmax = B.local_max[lvl]
         smp = np.flatnonzero(ok & lmax.ravel()[idx] if lmax is not None else ok)
         sidx, rays = idx[smp], level.roi_rays[tex[smp]]
-        r2_road = np.square(r_road[smp])
+        r2_road, w_road, b_val = np.square(r_road[smp]), w_road[smp], b_val[smp]
 
         def blurred(values: np.ndarray) -> np.ndarray:
             img = np.zeros(hm * wm, np.float32)
@@ -1298,14 +1306,11 @@ class DirectEstimator(EgoMotionEstimator):
 
         den = np.maximum(blurred(np.ones(len(smp), np.float32)), 1e-6)
         e_road = blurred(r2_road) / den
-        b_val = B.stacks[lvl][0].ravel()[sidx].astype(np.float64)
-        w_road = self.camera.project(rays @ np.linalg.inv(homography(self.ekf.x, self.K0, dt)).T)
         better = np.zeros(len(tex), bool)
         for lam in cfg.parallax_lambdas:
             P_a = rays @ np.linalg.inv(homography(self.ekf.x, lam * self.K0, dt)).T
-            w_a = self.camera.project(P_a)
-            apart = np.sum(np.square(w_a - w_road), axis=1) > (cfg.parallax_min_px * s) ** 2
-            w_a /= s
+            w_a = self.camera.project(P_a) / s
+            apart = np.sum(np.square(w_a - w_road), axis=1) > cfg.parallax_min_px**2
             use = _in_level(w_a, P_a, self.K0, level.shape) & apart
             a_l = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
             r2 = np.where(use, np.square(a_l - self._gain * b_val), r2_road)
@@ -1354,7 +1359,7 @@ class DirectEstimator(EgoMotionEstimator):
         r_road = a_val - self._gain * b_val
         bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
         if cfg.parallax_lambdas:
-            bad |= self._parallax_marks(A, B, dt, tex, idx, r_road, ok, noise)
+            bad |= self._parallax_marks(A, B, dt, tex, idx, w_a, b_val, r_road, ok, noise)
         out = np.zeros(hm * wm, np.uint8)
         out[idx[bad]] = 1
         if cfg.mask_smear > 0 and bad.any():

@@ -321,17 +321,6 @@ def _colored_mesh(arrays: tuple[np.ndarray, ...], name: str) -> trimesh.Trimesh:
     return m
 
 
-def _ground_arrays(area: tuple[float, ...]) -> tuple[np.ndarray, ...]:
-    """sim.scene._ground_mesh's grid of 25-m cells without its texture: (v, f, n)."""
-    xmin, xmax, ymin, ymax = area
-    nx = max(1, int(np.ceil((xmax - xmin) / 25.0)))
-    ny = max(1, int(np.ceil((ymax - ymin) / 25.0)))
-    xs, ys = np.linspace(xmin, xmax, nx + 1), np.linspace(ymin, ymax, ny + 1)
-    upper = np.stack(np.broadcast_arrays(xs[None, :], ys[1:, None]), axis=-1)
-    lower = np.stack(np.broadcast_arrays(xs[None, :], ys[:-1, None]), axis=-1)
-    return scene_mod._strip(upper, lower, scene_mod.GROUND_Z_M)
-
-
 def _seed_word(i: int) -> int:
     """Signed integer -> non-negative word for np.random.SeedSequence (zig-zag)."""
     return 2 * i if i >= 0 else -2 * i - 1
@@ -438,7 +427,9 @@ class TiledWorld:
             meshes.append(_colored_mesh(markings, "markings"))
         area = (ix0 * t, (ix1 + 1) * t, iy0 * t, (iy1 + 1) * t)
         meshes.append(
-            scene_mod._textured(*_ground_arrays(area), grass, scene_mod.GRASS_TILE_M, "ground")
+            scene_mod._textured(
+                *scene_mod.ground_grid(area), grass, scene_mod.GRASS_TILE_M, "ground"
+            )
         )
         roadside = _concat(tl.roadside for tl in tiles)
         if roadside is not None:

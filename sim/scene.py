@@ -378,15 +378,21 @@ def _markings_mesh(lanes: list[LaneGeometry]) -> trimesh.Trimesh | None:
     return parts.mesh("markings")
 
 
-def _ground_mesh(area: tuple[float, ...], rng: np.random.Generator) -> trimesh.Trimesh:
+def ground_grid(area: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(v, f, n) of the ground: a grid of ~25-m cells over area (xmin, xmax, ymin, ymax)
+    [m] at GROUND_Z_M, one strip per row of cells (facing +z)."""
     xmin, xmax, ymin, ymax = area
     nx = max(1, int(np.ceil((xmax - xmin) / 25.0)))
     ny = max(1, int(np.ceil((ymax - ymin) / 25.0)))
     xs, ys = np.linspace(xmin, xmax, nx + 1), np.linspace(ymin, ymax, ny + 1)
-    # one strip per row of cells: left = upper row, right = lower row (facing +z)
+    # left = upper row, right = lower row
     upper = np.stack(np.broadcast_arrays(xs[None, :], ys[1:, None]), axis=-1)
     lower = np.stack(np.broadcast_arrays(xs[None, :], ys[:-1, None]), axis=-1)
-    v, f, n = _strip(upper, lower, GROUND_Z_M)
+    return _strip(upper, lower, GROUND_Z_M)
+
+
+def _ground_mesh(area: tuple[float, ...], rng: np.random.Generator) -> trimesh.Trimesh:
+    v, f, n = ground_grid(area)
     return _textured(v, f, n, grass_texture(rng, GRASS_PX), GRASS_TILE_M, "ground")
 
 

@@ -60,56 +60,21 @@ def test_estimate_bad_inputs_are_named(tmp_path):
     frames = tmp_path / "frames"
     frames.mkdir()
     can = tmp_path / "can.csv"
+
+    def estimate(video, camera="omni-near", *extra):
+        return omnibench(
+            "estimate", str(video), "--camera", camera, "--can", str(can),
+            "--out", str(tmp_path / "o"), *extra,
+        )  # fmt: skip
+
     can.write_text("t_s,speed_mps\n0,20\n0.1,nan_or_junk\n")
-    proc = omnibench(
-        "estimate",
-        str(frames),
-        "--camera",
-        "omni-near",
-        "--can",
-        str(can),
-        "--out",
-        str(tmp_path / "o"),
-        "--fps",
-        "15",
-    )
+    proc = estimate(frames, "omni-near", "--fps", "15")
     assert proc.returncode == 2 and "can.csv" in proc.stderr and "row 3" in proc.stderr
     can.write_text("time,v\n0,20\n")
-    proc = omnibench(
-        "estimate",
-        str(frames),
-        "--camera",
-        "omni-near",
-        "--can",
-        str(can),
-        "--out",
-        str(tmp_path / "o"),
-        "--fps",
-        "15",
-    )
+    proc = estimate(frames, "omni-near", "--fps", "15")
     assert proc.returncode == 2 and "t_s" in proc.stderr
     can.write_text("t_s,speed_mps\n0,20\n")
-    proc = omnibench(
-        "estimate",
-        str(frames),
-        "--camera",
-        "omni-near",
-        "--can",
-        str(can),
-        "--out",
-        str(tmp_path / "o"),
-        "--fps",
-        "15",
-    )
+    proc = estimate(frames, "omni-near", "--fps", "15")
     assert proc.returncode == 2 and "no PNG/JPEG frames" in proc.stderr
-    proc = omnibench(
-        "estimate",
-        str(tmp_path / "video.mp4"),
-        "--camera",
-        "nocam",
-        "--can",
-        str(can),
-        "--out",
-        str(tmp_path / "o"),
-    )
+    proc = estimate(tmp_path / "video.mp4", "nocam")
     assert proc.returncode == 2 and "nocam" in proc.stderr
