@@ -16,7 +16,9 @@ For each new frame B (previous frame A)::
         5. IEKF update with the inliers (eq. 17-18); a step that raised the
            posterior cost is halved (``line_search``)
     a fit that fails, or whose residuals are far above the recent ones, is retried
-    once with the manoeuvre covariance added to the prior (abrupt turns, side slip)
+    with the manoeuvre covariance added to the prior (abrupt turns, side slip): one
+    pass per ``manoeuvre_search_levels`` level, each starting with one wide grid
+    search at that level, and the best fit of those kept
     a fit whose forward speed contradicts the CAN beyond its scale error (the images
     locked onto a wrong motion, e.g. a sudden yaw traded for speed) is a failure too
     the residual of A compensated onto B marks what the road motion does not explain
@@ -148,7 +150,11 @@ class DirectConfig:
     retry_noise_ratio: float = 3.0  # [-] a fit whose noise scale s² exceeds this many times
     # the median of the recent fits is retried too
     manoeuvre_W_sigma_rps: float = 1.0  # [rad/s] added std of W for the retry
-    manoeuvre_search_steps: int = 12  # [-] grid steps per side of the retry's searches
+    manoeuvre_search_levels: tuple[int, ...] = (2, 1, 0)  # [-] the retry runs one pass per level
+    # listed, each with one wide grid search at that level first, and keeps the best fit
+    manoeuvre_search_steps: int = 12  # [-] grid steps per side of the retry's wide search
+    manoeuvre_search_points: int = 1200  # [-] points of the retry's wide search: its wide
+    # grid holds many shallow minima that 300 points do not rank reliably
     manoeuvre_V_sigma_mps: tuple[float, float, float] = (0.5, 3.0, 0.5)  # [m/s] added std
     # of V (forward, lateral, vertical in car axes) for the retry: a manoeuvre is a turn
     # and a side slip; the forward speed stays the CAN's to tell (a wide forward std lets
@@ -214,7 +220,7 @@ KIND_DEFAULTS: dict[str, dict[str, Any]] = {
         "grad_threshold": 2.0,
         "selection": "gradient",
         "select_cells": 1,
-        "independent_points": 1000,  # every pixel, no NMS: neighbours share more of their error
+        "independent_points": 30,  # every pixel, no NMS: neighbours share much of their error
     },
 }
 
@@ -952,10 +958,13 @@ class DirectEstimator(EgoMotionEstimator):
         """Coarse-to-fine IEKF iterations (section 4.2); returns the record's point fields.
 
         When the road does not align from the prior (too few inliers or a poor fit) and
-        ``manoeuvre_retry`` is set, the update is run once more from the same prior
-        mean with the manoeuvre covariance added (`_manoeuvre_cov`): an abrupt turn or
-        side-slip that the random walk of eq. 19 cannot follow. The retry is kept only
-        if it fits.
+        ``manoeuvre_retry`` is set, the update is run again from the same prior mean
+        with the manoeuvre covariance added (`_manoeuvre_cov`): an abrupt turn or
+        side-slip that the random walk of eq. 19 cannot follow. The retry makes one pass
+        per ``manoeuvre_search_levels`` level, each opening with a wide grid search at
+        that level: a coarse level sees a large yaw jump within a few grid steps, a fine
+        one has the points to rank the grid when the coarse levels have few (a far
+        camera, a slow drive). The retry's best fit is kept only if it fits.
         """
         cfg, ekf = self.cfg, self.ekf
         excl = self._offroad if cfg.offroad_mask else None
@@ -972,19 +981,30 @@ class DirectEstimator(EgoMotionEstimator):
         ):
             first = res, ekf.x.copy(), ekf.P.copy()
             x_prior, P_prior = ekf.x_prior.copy(), ekf.P_prior.copy()
-            ekf.set_prior(x_prior, P_prior + self._manoeuvre_cov())
-            res = self._coarse_to_fine(A, B, dt, excl, cfg.manoeuvre_search_steps)
-            retry_failure = self._failure(res)
-            better = retry_failure is None and (
-                failure is not None or res["noise_scale"] < first[0]["noise_scale"] / 1.5
+            # one pass per level of the wide search (a coarse level sees farther, a fine one
+            # has the points): the best fit of those that did not fail
+            wide_prior = P_prior + self._manoeuvre_cov()
+            best = None
+            for wide_level in cfg.manoeuvre_search_levels:
+                if not 0 <= wide_level < cfg.levels:
+                    continue
+                ekf.set_prior(x_prior, wide_prior)
+                r = self._coarse_to_fine(A, B, dt, excl, wide_level)
+                if self._failure(r) is None and (
+                    best is None or r["noise_scale"] < best[0]["noise_scale"]
+                ):
+                    best = r, ekf.x.copy(), ekf.P.copy()
+            better = best is not None and (
+                failure is not None or best[0]["noise_scale"] < first[0]["noise_scale"] / 1.5
             )
-            if not better:
-                res, ekf.x, ekf.P = first
-                ekf.x_prior, ekf.P_prior = x_prior, P_prior
-                ekf.P_prior_inv = np.linalg.inv(P_prior)
-            else:
+            if better:
+                ekf.set_prior(x_prior, wide_prior)  # the record's prior: the retry's
+                res, ekf.x, ekf.P = best
                 flags.append("manoeuvre")  # a fit, not a fallback: the record is not degraded
                 failure = None
+            else:
+                ekf.set_prior(x_prior, P_prior)
+                res, ekf.x, ekf.P = first
         unusual = self._unusual_noise(res["noise_scale"])  # before this fit joins the history
         if failure is None:
             self._s2_hist = (self._s2_hist + [res["noise_scale"]])[-15:]
@@ -1069,11 +1089,12 @@ class DirectEstimator(EgoMotionEstimator):
         B: _Frame,
         dt: float,
         offroad: np.ndarray | None,
-        search_steps: int | None = None,
+        wide_level: int | None = None,
     ) -> dict[str, Any]:
         """One coarse-to-fine pass of IEKF iterations from the filter's prior.
 
-        search_steps: most grid steps per side of the searches (default ``search_steps``).
+        wide_level: the manoeuvre retry's level of one wide grid search (``manoeuvre_search_*``)
+        before the iterations, which then replaces the searches of ``search_levels``.
         """
         cfg, ekf = self.cfg, self.ekf
         ekf.set_prior(ekf.x_prior, ekf.P_prior)
@@ -1083,29 +1104,31 @@ class DirectEstimator(EgoMotionEstimator):
         s2 = noise_scale = math.nan
         speed = float((self.R_car_cam @ ekf.x_prior[V_SLICE])[0])
         col_scale = _column_scale(dt, speed)
+        if wide_level is not None:
+            # the retry: one wide grid search at wide_level, from the prior; all levels then
+            # iterate from there (a finer level's search over the retry's wide prior in a
+            # few coarse steps would jump out of the basin the wide search found)
+            level, sel, rays, a_val = self._level_points(wide_level, A, B, dt, offroad, col_scale)
+            if len(sel) >= cfg.min_points:
+                self._search(
+                    level,
+                    wide_level,
+                    rays,
+                    a_val,
+                    B,
+                    dt,
+                    cfg.manoeuvre_search_steps,
+                    cfg.manoeuvre_search_points,
+                )
         for lvl in reversed(range(cfg.levels)):
-            level = self.levels[lvl]
-            exclude = None
-            if offroad is not None:
-                r = math.ceil(cfg.mask_support_px * level.scale / self.levels[self._mask_lvl].scale)
-                m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
-                exclude = m.ravel()[level.to_mask] > 0
-            sel = select_points(level, A, lvl, cfg, ekf.P_prior, col_scale, exclude)
-            static = self._static_points(level, lvl, sel, A, B, dt)
-            sel = sel[~static]
+            level, sel, rays, a_val = self._level_points(lvl, A, B, dt, offroad, col_scale)
             labels = np.full(len(sel), UNUSED, np.int8)
             n_it = 0
-            rays = level.roi_rays[sel]
-            a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
             included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
             n_max = cfg.iterations[cfg.levels - 1 - lvl] if len(sel) else 0
-            if n_max and lvl in cfg.search_levels and len(sel) >= cfg.min_points:
-                # a wider search (the retry's) only at the coarsest searched level: the finer
-                # ones refine around it
-                steps = cfg.search_steps
-                if search_steps and lvl == max(x for x in cfg.search_levels if x < cfg.levels):
-                    steps = search_steps
-                self._search(level, lvl, rays, a_val, B, dt, steps)
+            searches = wide_level is None  # the retry's levels iterate from its wide search
+            if n_max and searches and lvl in cfg.search_levels and len(sel) >= cfg.min_points:
+                self._search(level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points)
             s2_ref, best, halvings = math.nan, None, 0
             while n_it < n_max:
                 idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included)
@@ -1160,6 +1183,29 @@ class DirectEstimator(EgoMotionEstimator):
             "done_levels": done_levels,
         }
 
+    def _level_points(
+        self,
+        lvl: int,
+        A: _Frame,
+        B: _Frame,
+        dt: float,
+        offroad: np.ndarray | None,
+        col_scale: np.ndarray,
+    ) -> tuple[_Level, np.ndarray, np.ndarray, np.ndarray]:
+        """(level, sel (M,) ROI indices, rays (M, 3), A's brightness (M,)) of a level's points:
+        selected outside the (dilated) off-road mask, the static ones dropped."""
+        cfg = self.cfg
+        level = self.levels[lvl]
+        exclude = None
+        if offroad is not None:
+            r = math.ceil(cfg.mask_support_px * level.scale / self.levels[self._mask_lvl].scale)
+            m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
+            exclude = m.ravel()[level.to_mask] > 0
+        sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude)
+        sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
+        a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
+        return level, sel, level.roi_rays[sel], a_val
+
     def _search(
         self,
         level: _Level,
@@ -1169,6 +1215,7 @@ class DirectEstimator(EgoMotionEstimator):
         B: _Frame,
         dt: float,
         max_steps: int,
+        n_points: int,
     ) -> None:
         """Grid search over the forward speed scale and the yaw rate before the iterations.
 
@@ -1184,8 +1231,8 @@ class DirectEstimator(EgoMotionEstimator):
         cfg, ekf, cam = self.cfg, self.ekf, self.camera
         s = float(level.scale)
         x0 = ekf.x.copy()
-        if len(rays) > cfg.search_points:  # an evenly spread subset is enough to rank the grid
-            sub = np.linspace(0, len(rays) - 1, cfg.search_points).astype(int)
+        if len(rays) > n_points:  # an evenly spread subset is enough to rank the grid
+            sub = np.linspace(0, len(rays) - 1, n_points).astype(int)
             rays, a_val = rays[sub], a_val[sub]
         n = self.K0 / np.linalg.norm(self.K0)
         dirs = np.zeros((2, N_STATE))
