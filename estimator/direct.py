@@ -263,7 +263,9 @@ class EgoMotionRecord:
     speed_mps: forward speed of the viewpoint in the car frame, ``(R_car_cam V)[0]``.
     yaw_rate_rps: ``(R_car_cam W)[2]`` (left turn positive).
     points_px (N, 2), point_labels (N,): points of the finest level used, in the
-    previous frame, with UNUSED / INLIER / OUTLIER.
+    previous frame, with UNUSED / INLIER / OUTLIER; point_speed_info (N,): what each
+    told about the forward speed at the last linearisation, ``(C_i d)² / R_i`` with d
+    the forward direction [1/(m/s)²] (0: left the view), for audits of the point set.
     iterations: IEKF iterations per level (coarse to fine).
     noise_scale: median of (residual² / R) / 0.455 at the finest level (~1 when the
     residuals match the noise model; large when the road did not align).
@@ -288,6 +290,7 @@ class EgoMotionRecord:
     iterations: tuple[int, ...] = ()
     points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     point_labels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    point_speed_info: np.ndarray = field(default_factory=lambda: np.zeros(0))
     flags: tuple[str, ...] = ()
     degraded: bool = False
     reason: str = ""
@@ -1100,7 +1103,7 @@ class DirectEstimator(EgoMotionEstimator):
         ekf.set_prior(ekf.x_prior, ekf.P_prior)
         iters: list[int] = []
         done_levels = 0
-        pts_out, labels_out = np.zeros((0, 2)), np.zeros(0, np.int8)
+        pts_out, labels_out, info_out = np.zeros((0, 2)), np.zeros(0, np.int8), np.zeros(0)
         s2 = noise_scale = math.nan
         speed = float((self.R_car_cam @ ekf.x_prior[V_SLICE])[0])
         col_scale = _column_scale(dt, speed)
@@ -1125,6 +1128,7 @@ class DirectEstimator(EgoMotionEstimator):
             labels = np.full(len(sel), UNUSED, np.int8)
             n_it = 0
             included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
+            speed_info = np.zeros(len(sel))
             n_max = cfg.iterations[cfg.levels - 1 - lvl] if len(sel) else 0
             searches = wide_level is None  # the retry's levels iterate from its wide search
             if n_max and searches and lvl in cfg.search_levels and len(sel) >= cfg.min_points:
@@ -1134,6 +1138,8 @@ class DirectEstimator(EgoMotionEstimator):
                 idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included)
                 if len(idx) < cfg.min_points:
                     break
+                speed_info[:] = 0.0
+                speed_info[idx] = (C[:, V_SLICE] @ self.R_car_cam[0]) ** 2 / R
                 if cfg.line_search:
                     # posterior cost at x̂: truncated residuals (points that left B count as
                     # truncated) + prior term; a step that raised it is halved (backtracking)
@@ -1173,6 +1179,7 @@ class DirectEstimator(EgoMotionEstimator):
             done_levels += n_it > 0
             if lvl == 0:
                 pts_out, labels_out, noise_scale = level.roi_w[sel], labels, s2
+                info_out = speed_info
         return {
             "noise_scale": noise_scale,
             "n_points": len(pts_out),
@@ -1180,6 +1187,7 @@ class DirectEstimator(EgoMotionEstimator):
             "iterations": tuple(iters),
             "points_px": pts_out,
             "point_labels": labels_out,
+            "point_speed_info": info_out,
             "done_levels": done_levels,
         }
 

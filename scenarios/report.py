@@ -41,7 +41,15 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
         f"<b>{_fmt(metrics.get('estimator'))}</b>, {_fmt(metrics.get('frames'))} frames"
         "</p>",
     ]
-    for name in ("ego", "detection", "tracking", "localization", "compensation", "timing"):
+    for name in (
+        "ego",
+        "detection",
+        "tracking",
+        "localization",
+        "compensation",
+        "points_above_road",
+        "timing",
+    ):
         if isinstance(metrics.get(name), dict):
             parts.append(f"<div class=sec><h2>{name}</h2>{_table(metrics[name])}</div>")
     for img, caption in (

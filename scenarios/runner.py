@@ -32,6 +32,7 @@ from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import EvalFrame, GtVehicle, MetricsConfig, evaluate
 from scenarios.metrics import ego_metrics, ego_series, plot_ego_errors, read_egomotion_csv
+from scenarios.point_audit import points_above_road
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from sim.drive import load_groundtruth, render_drive
@@ -175,6 +176,7 @@ def run_scenario(
         "tracking": trk_m["tracking"],
         "localization": det_m["localization"],
         "compensation": compensation,
+        "points_above_road": points_above_road(drive_dir, camera, gt, records),
         "evaluation": {
             "gate_m": GATE_M,
             "visible_px_min": VISIBLE_PX_MIN,

@@ -45,6 +45,7 @@ TABLE_METRICS = (
     ("ego.speed_rmse_mps", "speed RMSE [m/s]"),
     ("ego.yaw_rate_rmse_dps", "yaw-rate RMSE [deg/s]"),
     ("ego.angle_rmse_deg", "A RMSE [deg]"),
+    ("points_above_road.speed_info_share", "speed info above road"),
     ("detection.recall", "recall"),
     ("detection.precision", "precision"),
     ("tracking.mota", "MOTA"),

@@ -124,6 +124,17 @@ def test_recovers_true_motion_from_biased_prior(preset: str) -> None:
     assert len(rec.iterations) == DirectConfig().levels
 
 
+def test_points_carry_their_speed_information() -> None:
+    """point_speed_info: one value per finest-level point, (C_i d)² / R_i >= 0; the inliers
+    hold it (a point that left the view has none); finite and positive in sum."""
+    img_a, img_b, _ = _pair("omni-near")
+    _, rec = _run("omni-near", img_a, img_b)
+    info = rec.point_speed_info
+    assert info.shape == (len(rec.points_px),) and np.all(np.isfinite(info)) and info.min() >= 0
+    inl = rec.point_labels == INLIER
+    assert np.mean(info[inl] > 0) > 0.95 and info[inl].sum() > 0.9 * info.sum()
+
+
 def _with_moving_patch(
     img_a: np.ndarray, img_b: np.ndarray, box: tuple[int, int, int, int], shift: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -46,6 +46,9 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert set(m["detection"]) >= {"recall", "precision", "gt_count", "matched"}
     assert set(m["tracking"]) >= {"mota", "idf1", "hota", "id_switches"}
     assert set(m["localization"]) >= {"median_error_m", "p90_error_m"}
+    audit = m["points_above_road"]  # a highway with guard rails: some, not most
+    assert audit["frames"] == 23 and audit["inliers"] > 0
+    assert 0.0 <= audit["inlier_share"] < 0.5 and 0.0 <= audit["speed_info_share"] < 0.5
     for key in ("render_ms_per_frame", "estimate_ms_per_frame", "detect_track_ms_per_frame"):
         assert m["timing"][key] > 0
     for name in (

@@ -1,0 +1,77 @@
+"""The audit of the estimator's points against the range images of a drive."""
+
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from estimator.camera_io import load_camera
+from estimator.direct import INLIER, OUTLIER
+from estimator.fileio import write_png
+from scenarios.point_audit import height_map, points_above_road
+from sim.camera_motion import T_world_car, camera_pose
+
+
+@pytest.fixture(scope="module")
+def raised_drive(tmp_path_factory):
+    """A one-pair 'drive': the road everywhere, except a box of pixels that sees a
+    surface at 0.9 of the road's range (0.1 h = 0.195 m above it)."""
+    camera, mount = load_camera("omni-near")
+    pose = camera_pose(T_world_car(0.0, 0.0, 0.0), mount, None, 0.0)
+    rays = camera.pixel_rays().astype(np.float64)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    down = rays @ pose.T_world_actual[:3, :3].T  # world directions
+    h = pose.T_world_actual[2, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rng = np.where(down[..., 2] < -1e-3, h / -down[..., 2], 0.0)
+    rng = np.nan_to_num(rng)
+    box = (slice(300, 340), slice(80, 120))  # rows, cols: left of the car, on the road
+    rng[box] *= 0.9
+    rng = np.clip(rng, 0, 600)
+    drive = tmp_path_factory.mktemp("drive")
+    (drive / "range").mkdir()
+    write_png(drive / "range" / "000000.png", np.rint(rng * 100).astype(np.uint16))
+    gt = [{"T_world_cam_actual": pose.T_world_actual.tolist()}]
+    return drive, camera, gt, pose, box
+
+
+def test_height_map_puts_the_box_above_the_road(raised_drive):
+    drive, camera, gt, pose, box = raised_drive
+    rays = camera.pixel_rays().astype(np.float64)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    z = height_map(drive, 0, np.nan_to_num(rays), pose.T_world_actual)
+    h = pose.T_world_actual[2, 3]
+    assert np.median(z[box]) == pytest.approx(0.1 * h, abs=0.01)  # range quantised to 1 cm
+    assert np.abs(z[310:330, 200:220]).max() < 0.02  # road elsewhere
+
+
+def test_shares_of_points_and_information_above_the_road(raised_drive):
+    drive, camera, gt, _, _ = raised_drive
+    # 4 inliers in the box (info 1 each), 6 on the road (info 0.5 each), 5 outliers in
+    # the box (not counted)
+    inside = [(100.0, 320.0), (90.0, 310.0), (110.0, 330.0), (95.0, 325.0)]
+    road = [(200.0, 320.0), (210.0, 300.0), (520.0, 320.0), (320.0, 100.0), (320, 540), (230, 330)]
+    out = [(100.0, 315.0)] * 5
+    pts = np.array(inside + road + out, float)
+    labels = np.array([INLIER] * 10 + [OUTLIER] * 5, np.int8)
+    info = np.array([1.0] * 4 + [0.5] * 6 + [9.0] * 5)
+    rec = SimpleNamespace(frame=1, points_px=pts, point_labels=labels, point_speed_info=info)
+    first = SimpleNamespace(frame=0, points_px=np.zeros((0, 2)), point_labels=np.zeros(0))
+    a = points_above_road(drive, camera, gt, [first, rec])
+    assert a["frames"] == 1 and a["inliers"] == 10
+    assert a["inlier_share"] == pytest.approx(0.4)
+    assert a["speed_info_share"] == pytest.approx(4.0 / 7.0)
+    # an estimator without per-point information (the baselines): the share is NaN
+    rec.point_speed_info = np.zeros(0)
+    assert math.isnan(points_above_road(drive, camera, gt, [rec])["speed_info_share"])
+
+
+def test_missing_range_image_names_the_file(tmp_path: Path, raised_drive):
+    _, camera, gt, _, _ = raised_drive
+    rec = SimpleNamespace(
+        frame=1, points_px=np.array([[100.0, 320.0]]), point_labels=np.array([INLIER])
+    )
+    with pytest.raises(FileNotFoundError, match="000000.png"):
+        points_above_road(tmp_path, camera, gt, [rec])
