@@ -58,9 +58,8 @@ class FilterConfig:
     V_walk_mps: tuple[float, float, float] = (1.5, 0.5, 0.2)  # [m/s/sqrt(s)] fwd, lat, vert
     W_walk_rps: float = 0.3  # [rad/s/sqrt(s)] random walk of W about axes in the road plane
     # (roll and pitch rates: the camera's vibration on its mount, the body's motion)
-    W_walk_yaw_rps: float = 0.25  # [rad/s/sqrt(s)] random walk of the yaw rate (about the
-    # road normal): 0.065 rad/s (3.7 deg/s) per 15-Hz frame, a brisk turn-in (yaw
-    # accelerations of ~1 rad/s²); abrupt turns beyond it are the estimator's manoeuvre retry
+    W_walk_yaw_rps: float = 0.1  # [rad/s/sqrt(s)] random walk of the yaw rate (about the
+    # road normal); abrupt turns beyond it are the estimator's manoeuvre retry
     A_from_W: bool = True  # [-] A moves with the roll/pitch part of W between frame pairs
     A_walk_rad: float = float(np.radians(0.1))  # [rad/sqrt(s)] change of A that W does not
     # explain (road slope changes), roll/pitch

@@ -295,7 +295,7 @@ def test_manoeuvre_retry_follows_an_abrupt_turn(wide_levels) -> None:
     speed, yaw_rate, t0 = 10.0, 1.2, 0.3
     img_a, img_b, ms = _turn_pair(camera, mount, angle, speed, yaw_rate, t0)
     x_true = make_state(ms.V_mps, ms.W_rps, ms.A_rad)
-    # W's prior std 0.025 rad/s (1.4 deg/s, tighter than steady state): the turn is 45 sigma away
+    # W's prior std as in steady state (~1.5 deg/s): the turn is 45 sigma away
     tight = default_config(
         "omni", filter={"W0_sigma_rps": 0.025}, manoeuvre_search_levels=wide_levels
     )
