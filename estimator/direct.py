@@ -146,7 +146,7 @@ class DirectConfig:
     line_search: bool = True  # [-] halve an iteration's step when it raised the cost
     max_halvings: int = 3  # [-] halvings per level
     manoeuvre_retry: bool = True  # [-] when the road did not align from the prior, retry
-    # once with the manoeuvre covariance added to the prior (`_estimate`)
+    # with the manoeuvre covariance added to the prior (`_estimate`)
     retry_noise_ratio: float = 3.0  # [-] a fit whose noise scale s² exceeds this many times
     # the median of the recent fits is retried too
     manoeuvre_W_sigma_rps: float = 1.0  # [rad/s] added std of W for the retry
