@@ -34,7 +34,13 @@ def _suite(tmp_path: Path, **data) -> Path:
 # ------------------------------------------------------------------ shipped suites
 @pytest.mark.parametrize(
     "name, jobs, drives",
-    [("smoke", 12, 4), ("paper", 12, 6), ("full", 45, 15), ("can-bias-sweep", 14, 7)],
+    [
+        ("smoke", 12, 4),
+        ("paper", 12, 6),
+        ("full", 45, 15),
+        ("can-bias-sweep", 14, 7),
+        ("heldout", 12, 6),
+    ],
 )
 def test_shipped_suites_load(name, jobs, drives):
     s = load_suite(name)
