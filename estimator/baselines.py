@@ -121,11 +121,13 @@ class FeatureEstimator(EgoMotionEstimator):
             camera, mount, cfg.max_range_m, cfg.ego_box_m, cfg.ego_margin_m, cfg.roi_erode_px
         )
         self._prev: np.ndarray | None = None
+        self._road_prev: np.ndarray | None = None  # given road mask of the previous frame
         self._pixel_rays: np.ndarray | None = None
         self._rng = np.random.default_rng(cfg.seed)
 
     def _first_frame(self, gray: np.ndarray, t_s: float, can: float) -> None:
         self._prev = _to_u8(gray)
+        self._road_prev = self._road_mask_new
 
     def _measure(
         self,
@@ -139,8 +141,12 @@ class FeatureEstimator(EgoMotionEstimator):
         cfg, cam, ekf = self.cfg, self.camera, self.ekf
         img_a, img_b = self._prev, _to_u8(gray)
         self._prev = img_b
+        mask = self.mask  # corners of A: in the ROI, and on A's given road mask if any
+        if self._road_prev is not None:
+            mask = np.where(self._road_prev, mask, 0).astype(np.uint8)
+        self._road_prev = self._road_mask_new
         corners = cv2.goodFeaturesToTrack(
-            img_a, cfg.max_corners, cfg.quality_level, cfg.min_distance_px, mask=self.mask
+            img_a, cfg.max_corners, cfg.quality_level, cfg.min_distance_px, mask=mask
         )
         if corners is None or len(corners) < cfg.min_tracks:
             return self._fail(

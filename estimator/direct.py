@@ -359,6 +359,16 @@ def to_gray(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return img
 
 
+def check_road_mask(mask: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """(H, W) bool road mask, or None; a mask of another size is a caller error."""
+    if mask is None:
+        return None
+    mask = np.asarray(mask)
+    if mask.shape != shape:
+        raise ValueError(f"road_mask must be {shape[0]}x{shape[1]} (the frame), got {mask.shape}")
+    return mask.astype(bool)
+
+
 def valid_can(v: Any) -> float:
     """The CAN speed as a float, NaN when missing (None, NaN, inf, negative)."""
     try:
@@ -705,6 +715,7 @@ class EgoMotionEstimator:
         self._can_prev = math.nan
         self._dts: list[float] = []
         self._v_can = math.nan  # CAN speed of the current frame pair [m/s] (NaN: missing)
+        self._road_mask_new: np.ndarray | None = None  # road mask given with the frame
 
     def step(
         self,
@@ -712,14 +723,19 @@ class EgoMotionEstimator:
         t_s: float,
         can_speed_mps: float | None,
         compensate: bool | None = None,
+        road_mask: np.ndarray | None = None,
     ) -> EgoMotionRecord:
         """Estimate the motion from the previous frame to ``image`` taken at t_s [s].
 
         image: (H, W) gray or (H, W, 3) RGB of the camera's size; can_speed_mps:
         latest CAN speed [m/s] (None / NaN when missing). compensate: also return
         the motion-compensated previous frame (estimators that support it).
+        road_mask: optional (H, W) bool, True where ``image`` shows the road (a
+        segmentation from elsewhere); estimators that select points keep them on it
+        when this frame is the previous one of a pair (`DirectEstimator`).
         """
         gray = to_gray(image, (self.camera.height, self.camera.width))
+        self._road_mask_new = check_road_mask(road_mask, (self.camera.height, self.camera.width))
         t_s, t_prev = float(t_s), self._t_prev
         if not math.isfinite(t_s) or (t_prev is not None and not t_s > t_prev):
             raise ValueError(
@@ -847,6 +863,8 @@ class DirectEstimator(EgoMotionEstimator):
         self._offroad: np.ndarray | None = None  # (H_m, W_m) uint8 of the previous frame
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
+        self._road_prev: np.ndarray | None = None  # given road mask of the previous frame
+        self._offroad_given: list[np.ndarray] | None = None  # its exclusions, per level
 
     def compensate(
         self, image_prev: np.ndarray, dt_s: float, x: np.ndarray | None = None
@@ -869,6 +887,7 @@ class DirectEstimator(EgoMotionEstimator):
 
     def _first_frame(self, gray: np.ndarray, t_s: float, can: float) -> None:
         self._prev = self._frame(gray, t_s)
+        self._road_prev = self._road_mask_new
 
     def _measure(
         self,
@@ -881,6 +900,9 @@ class DirectEstimator(EgoMotionEstimator):
     ) -> dict[str, Any]:
         prev, frame = self._prev, self._frame(gray, t_s)
         self._prev = frame
+        # the pair's points come from the previous frame: its road mask, per level
+        self._offroad_given = self._given_offroad(self._road_prev)
+        self._road_prev = self._road_mask_new
         extra: dict[str, Any] = {}
         bad = [
             f"{which} {r}"
@@ -1209,10 +1231,33 @@ class DirectEstimator(EgoMotionEstimator):
             r = math.ceil(cfg.mask_support_px * level.scale / self.levels[self._mask_lvl].scale)
             m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
             exclude = m.ravel()[level.to_mask] > 0
+        if self._offroad_given is not None:
+            given = self._offroad_given[lvl]
+            exclude = given if exclude is None else exclude | given
         sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude)
         sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
         return level, sel, level.roi_rays[sel], a_val
+
+    def _given_offroad(self, road: np.ndarray | None) -> list[np.ndarray] | None:
+        """Per level, (M,) bool: candidates within their support of a pixel that the given
+        road mask (H, W) says is not road; None without a mask."""
+        if road is None:
+            return None
+        off = (~road).astype(np.uint8) * 255
+        r = math.ceil(self.cfg.mask_support_px)  # [level px]
+        kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+        out = []
+        for level in self.levels:
+            s = int(level.scale)
+            h, w = off.shape[0] // s, off.shape[1] // s
+            # any non-road pixel in the level pixel's block (area mean > 0)
+            m = (cv2.resize(off, (w, h), interpolation=cv2.INTER_AREA) > 0) if s > 1 else off
+            m = cv2.dilate(m.astype(np.uint8), kernel) if r else m
+            u = np.rint(level.roi_w[:, 0] / s).astype(np.int64).clip(0, w - 1)
+            v = np.rint(level.roi_w[:, 1] / s).astype(np.int64).clip(0, h - 1)
+            out.append(m[v, u] > 0)
+        return out
 
     def _search(
         self,

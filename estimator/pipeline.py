@@ -77,18 +77,34 @@ def estimate_frames(
     estimator: str = "direct",
     progress: bool = False,
     keep_images: bool = False,
+    road_masks: Iterable[np.ndarray] | None = None,
     **config,
 ) -> EstimateRun:
-    """Step the named estimator over frames; returns every per-frame record."""
+    """Step the named estimator over frames; returns every per-frame record.
+
+    road_masks: optional (H, W) bool road mask per frame (`estimator.recording.
+    iter_road_masks`); there must be one for every frame.
+    """
     from estimator.baselines import make_estimator
 
     est = make_estimator(estimator, camera, mount, **config)
     records, times = [], []
+    masks = iter(road_masks) if road_masks is not None else None
     for k, img in track(enumerate(frames), len(times_s), f"estimate ({estimator})", progress):
         if k >= len(times_s):
             raise ValueError(f"more frames than timestamps ({len(times_s)})")
+        mask = None
+        if masks is not None:
+            mask = next(masks, None)
+            if mask is None:
+                raise ValueError(f"fewer road masks than frames: none for frame {k}")
         t0 = time.perf_counter()
-        rec = est.step(img, float(times_s[k]), can.at(float(times_s[k])))
+        try:
+            rec = est.step(img, float(times_s[k]), can.at(float(times_s[k])), road_mask=mask)
+        except ValueError as e:
+            if mask is None or "road_mask" not in str(e):
+                raise
+            raise ValueError(f"frame {k}: {e}") from None
         times.append(time.perf_counter() - t0)
         if not keep_images and hasattr(rec, "compensated"):
             rec.compensated = None

@@ -95,6 +95,25 @@ def read_timestamps_csv(path: str | Path) -> np.ndarray:
     return t
 
 
+def iter_road_masks(folder: str | Path) -> Iterator[np.ndarray]:
+    """(H, W) bool road masks (non-zero = road), one PNG per frame in name order.
+
+    For a road segmentation computed elsewhere (`estimator.direct` keeps its points on
+    it); the estimator checks each mask's size against the frame.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RecordingError(f"road mask folder not found: {folder}")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
+    if not files:
+        raise RecordingError(f"{folder}: no PNG road masks in this folder")
+    for p in files:
+        m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        if m is None:
+            raise RecordingError(f"{p}: unreadable road mask")
+        yield m > 0
+
+
 def iter_frames(source: str | Path) -> Iterator[np.ndarray]:
     """RGB frames (H, W, 3) uint8 of a video file or of a folder of PNG/JPEG images."""
     source = Path(source)

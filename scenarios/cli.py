@@ -135,6 +135,9 @@ def run(
     out: Path = typer.Option(..., "--out", help="output folder"),
     estimator: str = typer.Option("direct", help="direct | can-only | features"),
     frames: int | None = typer.Option(None, help="only the first N frames"),
+    road_mask: str | None = typer.Option(
+        None, help="'gt': give the estimator the true road mask (a diagnostic ceiling)"
+    ),
 ) -> None:
     """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
     from scenarios.config import ScenarioError, load_scenario
@@ -143,7 +146,7 @@ def run(
 
     try:
         sc = load_scenario(scenario)
-        m = run_scenario(sc, out, estimator=estimator, max_frames=frames)
+        m = run_scenario(sc, out, estimator=estimator, max_frames=frames, road_mask=road_mask)
     except (ScenarioError, DriveError, ValueError) as e:
         _fail(str(e))
     e = m["ego"]
@@ -165,6 +168,9 @@ def estimate(
     estimator: str = typer.Option("direct", help="direct | can-only | features"),
     timestamps: Path | None = typer.Option(None, help="CSV frame,t_s (default: from fps)"),
     fps: float | None = typer.Option(None, help="frame rate when the video has none"),
+    road_masks: Path | None = typer.Option(
+        None, help="folder of road-mask PNGs, one per frame (non-zero = road)"
+    ),
 ) -> None:
     """Estimate ego-motion of any recording; writes OUT/egomotion.csv."""
     import numpy as np
@@ -174,6 +180,7 @@ def estimate(
     from estimator.recording import (
         RecordingError,
         iter_frames,
+        iter_road_masks,
         read_can_csv,
         read_timestamps_csv,
         video_fps,
@@ -190,7 +197,14 @@ def estimate(
                 raise RecordingError(f"{video}: no frame rate known: give --fps or --timestamps")
             times = np.arange(100000) / rate
         run = estimate_frames(
-            iter_frames(video), times, can_track, cam, mount, estimator=estimator, progress=True
+            iter_frames(video),
+            times,
+            can_track,
+            cam,
+            mount,
+            estimator=estimator,
+            progress=True,
+            road_masks=iter_road_masks(road_masks) if road_masks is not None else None,
         )
         out.mkdir(parents=True, exist_ok=True)
         write_egomotion_csv(out / "egomotion.csv", run.records, mount)

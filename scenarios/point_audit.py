@@ -39,6 +39,26 @@ def height_map(
     return z
 
 
+def camera_unit_rays(camera: CameraModel) -> np.ndarray:
+    """(H, W, 3) unit rays of every pixel (0 where the camera has none)."""
+    rays = camera.pixel_rays().astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    return np.nan_to_num(rays)
+
+
+def gt_road_mask(
+    drive_dir: Path,
+    frame: int,
+    unit_rays: np.ndarray,
+    gt_frame: dict,
+    max_height_m: float = MIN_HEIGHT_M,
+) -> np.ndarray:
+    """(H, W) bool: pixels of ``frame`` that see a surface within max_height_m of the road."""
+    z = height_map(drive_dir, frame, unit_rays, np.asarray(gt_frame["T_world_cam_actual"], float))
+    return z < max_height_m
+
+
 def points_above_road(
     drive_dir: Path,
     camera: CameraModel,
@@ -54,9 +74,7 @@ def points_above_road(
     are NaN when no pair had inliers (or, for the information, when the estimator does
     not report it: the baselines).
     """
-    rays = camera.pixel_rays().astype(np.float64)
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    rays = np.nan_to_num(rays)
+    rays = camera_unit_rays(camera)
     h, w = camera.height, camera.width
     n_in = n_above = 0
     info_all = info_above = 0.0

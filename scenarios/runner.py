@@ -32,7 +32,7 @@ from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import EvalFrame, GtVehicle, MetricsConfig, evaluate
 from scenarios.metrics import ego_metrics, ego_series, plot_ego_errors, read_egomotion_csv
-from scenarios.point_audit import points_above_road
+from scenarios.point_audit import camera_unit_rays, gt_road_mask, points_above_road
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from sim.drive import load_groundtruth, render_drive
@@ -87,8 +87,16 @@ def run_scenario(
     progress: bool = True,
     max_frames: int | None = None,
     video: bool = True,
+    road_mask: str | None = None,
 ) -> dict:
-    """Render (resuming), estimate, detect, track and measure one scenario."""
+    """Render (resuming), estimate, detect, track and measure one scenario.
+
+    road_mask: ``"gt"`` gives the estimator each frame's true road mask (what lies
+    within ``MIN_HEIGHT_M`` of the road, from the range images): the speed it then
+    reaches is what a perfect road segmentation would allow, a diagnostic ceiling.
+    """
+    if road_mask not in (None, "gt"):
+        raise ValueError(f"road_mask must be 'gt' or None, got {road_mask!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     drive_dir = Path(drive_dir) if drive_dir is not None else out_dir / "drive"
@@ -100,6 +108,7 @@ def run_scenario(
     det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
     est = make_estimator(estimator, camera, mount)
     surround = SurroundAnalyzer(camera, mount, det_cfg)
+    unit_rays = camera_unit_rays(camera) if road_mask else None
     records, track_rows, eval_det, eval_trk = [], [], [], []
     t_est, t_det = [], []
     writer = _VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
@@ -111,7 +120,8 @@ def run_scenario(
         ):
             t = float(times[k])
             t0 = time.perf_counter()
-            rec = est.step(image, t, can.at(t))
+            given = gt_road_mask(drive_dir, k, unit_rays, gt[k]) if road_mask else None
+            rec = est.step(image, t, can.at(t), road_mask=given)
             t1 = time.perf_counter()
             sf = surround.step(k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps)
             t2 = time.perf_counter()
@@ -170,6 +180,7 @@ def run_scenario(
         "scenario": scenario.name,
         "camera": scenario.camera if isinstance(scenario.camera, str) else "inline",
         "estimator": estimator,
+        "road_mask": road_mask or "none",
         "frames": drive.n_frames,
         "ego": ego_metrics(series),
         "detection": det_m["detection"],

@@ -170,6 +170,32 @@ def test_data_snooping_marks_moving_patch_as_outliers() -> None:
     assert v_pct < 1.0 and np.all(w_dps < 0.2) and np.all(a_deg < 0.05)
 
 
+def test_given_road_mask_keeps_points_off_the_patch() -> None:
+    """A road mask that leaves out the moving patch of the previous frame: no point there
+    (with its support), the rest of the road measured as before."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    img_a, img_b, x_true = _pair(preset)
+    box = (260, 60, 60, 40)
+    a, b = _with_moving_patch(img_a, img_b, box, (6, -5))
+    road = np.ones((camera.height, camera.width), bool)
+    road[box[1] : box[1] + box[3], box[0] : box[0] + box[2]] = False
+    est = DirectEstimator(camera, mount)
+    est.step(a, 0.3, SPEED * CAN_SCALE, road_mask=road)
+    rec = est.step(b, 0.3 + DT, SPEED * CAN_SCALE, road_mask=road)
+    u, v = rec.points_px.T
+    near = (u >= box[0] - 2) & (u < box[0] + box[2] + 2) & (v >= box[1] - 2)
+    near &= v < box[1] + box[3] + 2
+    assert len(u) > 500 and not near.any()
+    v_pct, w_dps, a_deg = _errors(rec, x_true)
+    assert v_pct < 1.0 and np.all(w_dps < 0.2) and np.all(a_deg < 0.05)
+    bad = r"road_mask must be 480x640 \(the frame\), got \(10, 10\)"
+    with pytest.raises(ValueError, match=bad):
+        DirectEstimator(*_camera("rectilinear-rear-left")[:2]).step(
+            np.zeros((480, 640), np.uint8), 0.0, 10.0, road_mask=np.ones((10, 10), bool)
+        )
+
+
 @pytest.mark.parametrize("kind, w_tol_dps", [("tukey", 0.2), ("huber", 1.0)])
 def test_robust_m_option(kind: str, w_tol_dps: float) -> None:
     """Robust-M instead of snooping; Huber keeps a bounded pull of the outliers."""

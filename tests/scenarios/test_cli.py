@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from estimator.camera_io import load_camera
@@ -78,3 +79,37 @@ def test_estimate_bad_inputs_are_named(tmp_path):
     assert proc.returncode == 2 and "no PNG/JPEG frames" in proc.stderr
     proc = estimate(tmp_path / "video.mp4", "nocam")
     assert proc.returncode == 2 and "nocam" in proc.stderr
+
+
+def test_estimate_takes_road_masks_and_names_bad_ones(tmp_path):
+    """--road-masks: one PNG per frame; too few, or of another size, is named."""
+    cam, _ = load_camera("omni-near")
+    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    frames.mkdir()
+    masks.mkdir()
+    rng = np.random.default_rng(3)
+    for k in range(3):
+        img = rng.integers(0, 255, (cam.height, cam.width), dtype=np.uint8)
+        cv2.imwrite(str(frames / f"{k:06d}.png"), img)
+    can = tmp_path / "can.csv"
+    can.write_text("t_s,speed_mps\n0,10\n1,10\n")
+
+    def estimate():
+        return omnibench(
+            "estimate", str(frames), "--camera", "omni-near", "--can", str(can), "--fps", "15",
+            "--out", str(tmp_path / "o"), "--road-masks", str(masks),
+        )  # fmt: skip
+
+    proc = estimate()
+    assert proc.returncode == 2 and "no PNG road masks" in proc.stderr
+    for k in range(2):
+        cv2.imwrite(str(masks / f"{k:06d}.png"), np.full((cam.height, cam.width), 255, np.uint8))
+    proc = estimate()
+    assert proc.returncode == 2 and "none for frame 2" in proc.stderr
+    cv2.imwrite(str(masks / "000002.png"), np.full((10, 10), 255, np.uint8))
+    proc = estimate()
+    assert proc.returncode == 2 and "frame 2" in proc.stderr and "(10, 10)" in proc.stderr
+    cv2.imwrite(str(masks / "000002.png"), np.full((cam.height, cam.width), 255, np.uint8))
+    proc = estimate()
+    assert proc.returncode == 0, proc.stderr
+    assert len((tmp_path / "o" / "egomotion.csv").read_text().splitlines()) == 4

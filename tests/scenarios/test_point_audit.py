@@ -10,7 +10,7 @@ import pytest
 from estimator.camera_io import load_camera
 from estimator.direct import INLIER, OUTLIER
 from estimator.fileio import write_png
-from scenarios.point_audit import height_map, points_above_road
+from scenarios.point_audit import camera_unit_rays, gt_road_mask, height_map, points_above_road
 from sim.camera_motion import T_world_car, camera_pose
 
 
@@ -75,3 +75,20 @@ def test_missing_range_image_names_the_file(tmp_path: Path, raised_drive):
     )
     with pytest.raises(FileNotFoundError, match="000000.png"):
         points_above_road(tmp_path, camera, gt, [rec])
+
+
+def test_gt_road_mask_leaves_out_the_raised_box(raised_drive):
+    drive, camera, gt, _, box = raised_drive
+    road = gt_road_mask(drive, 0, camera_unit_rays(camera), gt[0])
+    assert road.shape == (camera.height, camera.width)
+    assert not road[box].any()
+    assert road[310:330, 200:220].all()
+    assert not road[0, 0]  # outside the mirror: no range, not road
+
+
+def test_run_refuses_an_unknown_road_mask(tmp_path: Path):
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    with pytest.raises(ValueError, match="road_mask must be 'gt' or None, got 'seg'"):
+        run_scenario(load_scenario("highway-omni-near"), tmp_path, road_mask="seg")
