@@ -165,6 +165,9 @@ class DirectConfig:
     presmooth_sigma_px: float = 0.7  # [px] Gaussian blur of the full-resolution frame
     sigma_intensity: float = 2.0  # [DN] measurement noise of one brightness sample
     sigma_flow_px: float = 0.2  # [px] model/interpolation noise, as a flow error (level px)
+    offroad_depth_sigma: float = 1.0  # [-] std of the plane scale lambda of a point that a
+    # given road mask says is off the road: its depth is unknown, so it constrains the
+    # rotation and hardly the speed (`_linearise`)
     independent_points: int = 100  # [-] the information of more inliers is counted as that of
     # this many independent ones (R scaled by n / independent_points); 0: every point counts
     outliers: str = "snooping"  # "snooping" (eq. 20-21), "huber", "tukey" or "none"
@@ -731,8 +734,9 @@ class EgoMotionEstimator:
         latest CAN speed [m/s] (None / NaN when missing). compensate: also return
         the motion-compensated previous frame (estimators that support it).
         road_mask: optional (H, W) bool, True where ``image`` shows the road (a
-        segmentation from elsewhere); estimators that select points keep them on it
-        when this frame is the previous one of a pair (`DirectEstimator`).
+        segmentation from elsewhere), used when this frame is the previous one of a
+        pair: `DirectEstimator` lets its points off the road tell the rotation only
+        (``offroad_depth_sigma``), the features baseline takes corners on it only.
         """
         gray = to_gray(image, (self.camera.height, self.camera.width))
         self._road_mask_new = check_road_mask(road_mask, (self.camera.height, self.camera.width))
@@ -927,8 +931,15 @@ class DirectEstimator(EgoMotionEstimator):
         B: _Frame,
         dt: float,
         included: np.ndarray,
+        off: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Steps 1-3 at x̂: (idx (M,) points that land in B, Δz (M,), C (M, 9), R (M,))."""
+        """Steps 1-3 at x̂: (idx (M,) points that land in B, Δz (M,), C (M, 9), R (M,)).
+
+        off: (len(rays),) bool, points that a given road mask puts off the road: their
+        plane scale lambda is unknown (std ``offroad_depth_sigma``); since D is linear in
+        V, the residual's derivative w.r.t. lambda is the one w.r.t. the speed scale,
+        ``C V``, and ``(sigma C V)²`` joins R: they tell the rotation, hardly the speed.
+        """
         cfg, cam, x = self.cfg, self.camera, self.ekf.x
         s = float(level.scale)
         # step 1: warp the points into B with x̂ (eq. 3, 6-10)
@@ -954,6 +965,9 @@ class DirectEstimator(EgoMotionEstimator):
         R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * np.sum(g * g, axis=1)
         # step 3, eq. 14-16: C_i = g_i^T dw_b/dx (gradient per full-resolution pixel)
         C = constraint_rows(cam, rays[idx], P_b[idx], g / s, dh_dx(x, self.K0, dt))
+        if off is not None and cfg.offroad_depth_sigma > 0:
+            lam_var = np.square(cfg.offroad_depth_sigma * (C[:, V_SLICE] @ x[V_SLICE]))
+            R = R + np.where(off[idx], lam_var, 0.0)
         return idx, dz, C, R
 
     def _classify(
@@ -1133,7 +1147,9 @@ class DirectEstimator(EgoMotionEstimator):
             # the retry: one wide grid search at wide_level, from the prior; all levels then
             # iterate from there (a finer level's search over the retry's wide prior in a
             # few coarse steps would jump out of the basin the wide search found)
-            level, sel, rays, a_val = self._level_points(wide_level, A, B, dt, offroad, col_scale)
+            level, sel, rays, a_val, _ = self._level_points(
+                wide_level, A, B, dt, offroad, col_scale
+            )
             if len(sel) >= cfg.min_points:
                 self._search(
                     level,
@@ -1146,7 +1162,7 @@ class DirectEstimator(EgoMotionEstimator):
                     cfg.manoeuvre_search_points,
                 )
         for lvl in reversed(range(cfg.levels)):
-            level, sel, rays, a_val = self._level_points(lvl, A, B, dt, offroad, col_scale)
+            level, sel, rays, a_val, off = self._level_points(lvl, A, B, dt, offroad, col_scale)
             labels = np.full(len(sel), UNUSED, np.int8)
             n_it = 0
             included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
@@ -1157,7 +1173,7 @@ class DirectEstimator(EgoMotionEstimator):
                 self._search(level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points)
             s2_ref, best, halvings = math.nan, None, 0
             while n_it < n_max:
-                idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included)
+                idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included, off)
                 if len(idx) < cfg.min_points:
                     break
                 speed_info[:] = 0.0
@@ -1221,9 +1237,10 @@ class DirectEstimator(EgoMotionEstimator):
         dt: float,
         offroad: np.ndarray | None,
         col_scale: np.ndarray,
-    ) -> tuple[_Level, np.ndarray, np.ndarray, np.ndarray]:
-        """(level, sel (M,) ROI indices, rays (M, 3), A's brightness (M,)) of a level's points:
-        selected outside the (dilated) off-road mask, the static ones dropped."""
+    ) -> tuple[_Level, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """(level, sel (M,) ROI indices, rays (M, 3), A's brightness (M,), off (M,) bool or
+        None) of a level's points: selected outside the (dilated) off-road mask, the static
+        ones dropped; off: within their support of what a given road mask says is not road."""
         cfg = self.cfg
         level = self.levels[lvl]
         exclude = None
@@ -1231,17 +1248,15 @@ class DirectEstimator(EgoMotionEstimator):
             r = math.ceil(cfg.mask_support_px * level.scale / self.levels[self._mask_lvl].scale)
             m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
             exclude = m.ravel()[level.to_mask] > 0
-        if self._offroad_given is not None:
-            given = self._offroad_given[lvl]
-            exclude = given if exclude is None else exclude | given
         sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude)
         sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
-        return level, sel, level.roi_rays[sel], a_val
+        off = self._offroad_given[lvl][sel] if self._offroad_given is not None else None
+        return level, sel, level.roi_rays[sel], a_val, off
 
     def _given_offroad(self, road: np.ndarray | None) -> list[np.ndarray] | None:
         """Per level, (M,) bool: candidates within their support of a pixel that the given
-        road mask (H, W) says is not road; None without a mask."""
+        road mask (H, W) says is not road (their depth is unknown); None without a mask."""
         if road is None:
             return None
         off = (~road).astype(np.uint8) * 255
