@@ -95,22 +95,33 @@ def read_timestamps_csv(path: str | Path) -> np.ndarray:
     return t
 
 
+def _iter_images(files: list[Path], flags: int, what: str) -> Iterator[np.ndarray]:
+    """cv2.imread of each file (flags), in order; an unreadable one is named."""
+    for p in files:
+        img = cv2.imread(str(p), flags)
+        if img is None:
+            raise RecordingError(f"{p}: unreadable {what}")
+        yield img
+
+
+def _image_files(folder: Path, suffixes: tuple[str, ...], what: str) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)
+    if not files:
+        raise RecordingError(f"{folder}: no {what} in this folder")
+    return files
+
+
 def iter_road_masks(folder: str | Path) -> Iterator[np.ndarray]:
     """(H, W) bool road masks (non-zero = road), one PNG per frame in name order.
 
-    For a road segmentation computed elsewhere (`estimator.direct` keeps its points on
-    it); the estimator checks each mask's size against the frame.
+    For a road segmentation computed elsewhere (`estimator.direct` lets its points off
+    the road tell the rotation only); the estimator checks each mask's size.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise RecordingError(f"road mask folder not found: {folder}")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
-    if not files:
-        raise RecordingError(f"{folder}: no PNG road masks in this folder")
-    for p in files:
-        m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-        if m is None:
-            raise RecordingError(f"{p}: unreadable road mask")
+    files = _image_files(folder, (".png",), "PNG road masks")
+    for m in _iter_images(files, cv2.IMREAD_GRAYSCALE, "road mask"):
         yield m > 0
 
 
@@ -118,13 +129,8 @@ def iter_frames(source: str | Path) -> Iterator[np.ndarray]:
     """RGB frames (H, W, 3) uint8 of a video file or of a folder of PNG/JPEG images."""
     source = Path(source)
     if source.is_dir():
-        files = sorted(p for p in source.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
-        if not files:
-            raise RecordingError(f"{source}: no PNG/JPEG frames in this folder")
-        for p in files:
-            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-            if img is None:
-                raise RecordingError(f"{p}: unreadable image")
+        files = _image_files(source, (".png", ".jpg", ".jpeg"), "PNG/JPEG frames")
+        for img in _iter_images(files, cv2.IMREAD_COLOR, "image"):
             yield img[..., ::-1]
         return
     if not source.is_file():
