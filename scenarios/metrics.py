@@ -91,6 +91,30 @@ def ego_metrics(series: dict) -> dict:
     }
 
 
+def ego_consistency(records: list, gt: list[dict], mount: CameraMount) -> dict:
+    """Mean NEES of the forward speed and the yaw rate: error² over the estimator's own
+    variance (its full P, car axes), over the frames with truth; about 1 when the
+    covariance the estimator prints is honest, much larger when it is overconfident."""
+    R = mount.R_car_cam
+    h_v, h_w = R[0], R[2]  # forward speed = h_v . V, yaw rate = h_w . W
+    by_frame = {g["frame"]: g for g in gt}
+    nv, nw = [], []
+    for rec in records:
+        g = by_frame.get(int(rec.frame))
+        if g is None or g["motion_from_prev"] is None or not np.all(np.isfinite(rec.x)):
+            continue
+        m = g["motion_from_prev"]
+        ev = float(h_v @ (rec.x[0:3] - np.asarray(m["V_mps"])))
+        ew = float(h_w @ (rec.x[3:6] - np.asarray(m["W_rps"])))
+        nv.append(ev**2 / float(h_v @ rec.P[0:3, 0:3] @ h_v))
+        nw.append(ew**2 / float(h_w @ rec.P[3:6, 3:6] @ h_w))
+    return {"speed_nees": _mean(nv), "yaw_rate_nees": _mean(nw)}
+
+
+def _mean(values: list[float]) -> float:
+    return float(np.mean(values)) if values else float("nan")
+
+
 def plot_ego_errors(series: dict, path: Path, title: str = "") -> None:
     """Speed, yaw rate and A against ground truth and the CAN prior (PNG)."""
     import matplotlib

@@ -31,7 +31,13 @@ from estimator.surround import SurroundAnalyzer
 from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import EvalFrame, GtVehicle, MetricsConfig, evaluate
-from scenarios.metrics import ego_metrics, ego_series, plot_ego_errors, read_egomotion_csv
+from scenarios.metrics import (
+    ego_consistency,
+    ego_metrics,
+    ego_series,
+    plot_ego_errors,
+    read_egomotion_csv,
+)
 from scenarios.point_audit import camera_unit_rays, gt_road_mask, points_above_road
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
@@ -182,7 +188,7 @@ def run_scenario(
         "estimator": estimator,
         "road_mask": road_mask or "none",
         "frames": drive.n_frames,
-        "ego": ego_metrics(series),
+        "ego": {**ego_metrics(series), **ego_consistency(records, gt, mount)},
         "detection": det_m["detection"],
         "tracking": trk_m["tracking"],
         "localization": det_m["localization"],
