@@ -1006,7 +1006,7 @@ class DirectEstimator(EgoMotionEstimator):
         camera, a slow drive). The retry's best fit is kept only if it fits.
         """
         cfg, ekf = self.cfg, self.ekf
-        excl = self._offroad if cfg.offroad_mask else None
+        excl = self._excluded(self._offroad) if cfg.offroad_mask else None
         self._offroad = None
         res = self._coarse_to_fine(A, B, dt, excl)
         failure = self._failure(res)
@@ -1127,11 +1127,13 @@ class DirectEstimator(EgoMotionEstimator):
         A: _Frame,
         B: _Frame,
         dt: float,
-        offroad: np.ndarray | None,
+        excluded: list[np.ndarray] | None,
         wide_level: int | None = None,
     ) -> dict[str, Any]:
         """One coarse-to-fine pass of IEKF iterations from the filter's prior.
 
+        excluded: per level, (M,) bool candidates that the off-road mask keeps out
+        (`_excluded`), or None.
         wide_level: the manoeuvre retry's level of one wide grid search (``manoeuvre_search_*``)
         before the iterations, which then replaces the searches of ``search_levels``.
         """
@@ -1148,7 +1150,7 @@ class DirectEstimator(EgoMotionEstimator):
             # iterate from there (a finer level's search over the retry's wide prior in a
             # few coarse steps would jump out of the basin the wide search found)
             level, sel, rays, a_val, _ = self._level_points(
-                wide_level, A, B, dt, offroad, col_scale
+                wide_level, A, B, dt, excluded, col_scale
             )
             if len(sel) >= cfg.min_points:
                 self._search(
@@ -1162,7 +1164,7 @@ class DirectEstimator(EgoMotionEstimator):
                     cfg.manoeuvre_search_points,
                 )
         for lvl in reversed(range(cfg.levels)):
-            level, sel, rays, a_val, off = self._level_points(lvl, A, B, dt, offroad, col_scale)
+            level, sel, rays, a_val, off = self._level_points(lvl, A, B, dt, excluded, col_scale)
             labels = np.full(len(sel), UNUSED, np.int8)
             n_it = 0
             included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
@@ -1176,8 +1178,9 @@ class DirectEstimator(EgoMotionEstimator):
                 idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included, off)
                 if len(idx) < cfg.min_points:
                     break
-                speed_info[:] = 0.0
-                speed_info[idx] = (C[:, V_SLICE] @ self.R_car_cam[0]) ** 2 / R
+                if lvl == 0:  # for the record (audits): the finest level's last linearisation
+                    speed_info[:] = 0.0
+                    speed_info[idx] = (C[:, V_SLICE] @ self.R_car_cam[0]) ** 2 / R
                 if cfg.line_search:
                     # posterior cost at x̂: truncated residuals (points that left B count as
                     # truncated) + prior term; a step that raised it is halved (backtracking)
@@ -1235,24 +1238,34 @@ class DirectEstimator(EgoMotionEstimator):
         A: _Frame,
         B: _Frame,
         dt: float,
-        offroad: np.ndarray | None,
+        excluded: list[np.ndarray] | None,
         col_scale: np.ndarray,
     ) -> tuple[_Level, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """(level, sel (M,) ROI indices, rays (M, 3), A's brightness (M,), off (M,) bool or
-        None) of a level's points: selected outside the (dilated) off-road mask, the static
-        ones dropped; off: within their support of what a given road mask says is not road."""
+        None) of a level's points: selected outside the off-road mask (``excluded``), the
+        static ones dropped; off: within their support of what a given road mask says is
+        not road."""
         cfg = self.cfg
         level = self.levels[lvl]
-        exclude = None
-        if offroad is not None:
-            r = math.ceil(cfg.mask_support_px * level.scale / self.levels[self._mask_lvl].scale)
-            m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
-            exclude = m.ravel()[level.to_mask] > 0
+        exclude = excluded[lvl] if excluded is not None else None
         sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude)
         sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
         off = self._offroad_given[lvl][sel] if self._offroad_given is not None else None
         return level, sel, level.roi_rays[sel], a_val, off
+
+    def _excluded(self, offroad: np.ndarray | None) -> list[np.ndarray] | None:
+        """Per level, (M,) bool: candidates within their support (``mask_support_px``) of a
+        pixel of the off-road mask (H_m, W_m); None without one. Computed once per pair:
+        every pass of the retry selects from it."""
+        if offroad is None:
+            return None
+        out, mask_scale = [], self.levels[self._mask_lvl].scale
+        for level in self.levels:
+            r = math.ceil(self.cfg.mask_support_px * level.scale / mask_scale)
+            m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
+            out.append(m.ravel()[level.to_mask] > 0)
+        return out
 
     def _given_offroad(self, road: np.ndarray | None) -> list[np.ndarray] | None:
         """Per level, (M,) bool: candidates within their support of a pixel that the given
