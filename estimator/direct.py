@@ -15,6 +15,9 @@ For each new frame B (previous frame A)::
            residual level s² (median of Δz²/R, ``adaptive_noise``)
         5. IEKF update with the inliers (eq. 17-18); a step that raised the
            posterior cost is halved (``line_search``)
+    a fit that moved the yaw rate far beyond what the prior allowed (a change of turn
+    rate that the random walk of eq. 19 cannot follow) is refitted with the prior's yaw
+    rate widened, so that the images and not the old rate tell it (`_yaw_refit`)
     a fit that fails, or whose residuals are far above the recent ones, is retried
     with the manoeuvre covariance added to the prior (abrupt turns, side slip): one
     pass per ``manoeuvre_search_levels`` level, each starting with one wide grid
@@ -155,6 +158,11 @@ class DirectConfig:
     manoeuvre_search_steps: int = 12  # [-] grid steps per side of the retry's wide search
     manoeuvre_search_points: int = 1200  # [-] points of the retry's wide search: its wide
     # grid holds many shallow minima that 300 points do not rank reliably
+    yaw_jump_sigmas: float = 3.0  # [-] a fit that moved the yaw rate more than this many std
+    # of the shift the filter expects (prior minus posterior variance) says the random walk
+    # of eq. 19 missed a change of turn rate: refit with the yaw prior widened (`_yaw_refit`);
+    # <= 0: never
+    yaw_jump_widen: float = 2.0  # [-] the refit's added yaw std, in units of the shift seen
     manoeuvre_V_sigma_mps: tuple[float, float, float] = (0.5, 3.0, 0.5)  # [m/s] added std
     # of V (forward, lateral, vertical in car axes) for the retry: a manoeuvre is a turn
     # and a side slip; the forward speed stays the CAN's to tell (a wide forward std lets
@@ -1010,6 +1018,8 @@ class DirectEstimator(EgoMotionEstimator):
         self._offroad = None
         res = self._coarse_to_fine(A, B, dt, excl)
         failure = self._failure(res)
+        if failure is None and cfg.yaw_jump_sigmas > 0:
+            res = self._yaw_refit(A, B, dt, excl, res, flags)
         surprising = failure is None and self._unusual_noise(res["noise_scale"])
         if cfg.manoeuvre_retry and (
             surprising
@@ -1065,6 +1075,61 @@ class DirectEstimator(EgoMotionEstimator):
             return False
         usual = float(np.median(self._s2_hist))
         return s2 > self.cfg.retry_noise_ratio * max(usual, 0.25)
+
+    def _yaw_shift(self) -> tuple[float, float]:
+        """(shift, expected std) of the car's yaw rate from the prior to the fit [rad/s].
+
+        The filter expects the update to move x̂ with covariance P⁻ - P⁺ (that of the
+        innovation mapped by the gain); a larger shift says the prior was off.
+        """
+        ekf, n = self.ekf, self.R_car_cam[2]  # yaw rate = n . W
+        shift = float(n @ (ekf.x[W_SLICE] - ekf.x_prior[W_SLICE]))
+        dP = ekf.P_prior[W_SLICE, W_SLICE] - ekf.P[W_SLICE, W_SLICE]
+        return shift, math.sqrt(max(float(n @ dP @ n), 0.0))
+
+    def _yaw_refit(
+        self,
+        A: _Frame,
+        B: _Frame,
+        dt: float,
+        excl: list[np.ndarray] | None,
+        res: dict[str, Any],
+        flags: list[str],
+    ) -> dict[str, Any]:
+        """Refit when the fit moved the yaw rate beyond what the prior allows.
+
+        The random walk of eq. 19 keeps a steady turn rate steady; when the road says the
+        rate changed by d, far beyond the prior's std, the posterior is a compromise that
+        holds part of the old rate. The refit widens the prior's yaw rate by
+        ``yaw_jump_widen`` x |d| (with the sideways speed it drags at the camera's lever
+        arm) from the same prior mean: the images then tell the new rate. Kept when it
+        does not fail; the prior widened is then the record's prior (flag ``yaw-jump``).
+        """
+        cfg, ekf = self.cfg, self.ekf
+        shift, sd = self._yaw_shift()
+        if abs(shift) <= cfg.yaw_jump_sigmas * max(sd, 1e-9):
+            return res
+        first = res, ekf.x.copy(), ekf.P.copy()
+        x_prior, P_prior = ekf.x_prior.copy(), ekf.P_prior.copy()
+        wide = P_prior + self._yaw_cov(cfg.yaw_jump_widen * abs(shift))
+        ekf.set_prior(x_prior, wide)
+        r = self._coarse_to_fine(A, B, dt, excl)
+        if self._failure(r) is None:
+            flags.append("yaw-jump")
+            return r
+        res, ekf.x, ekf.P = first
+        ekf.set_prior(x_prior, P_prior)
+        return res
+
+    def _yaw_cov(self, sigma_rps: float) -> np.ndarray:
+        """(9, 9) covariance of a change of the car's yaw rate with std sigma_rps (camera
+        axes), with the sideways speed it moves the camera by at the lever arm."""
+        G = np.zeros(N_STATE)
+        G[W_SLICE] = self.R_car_cam[2]
+        lever = self.mount.lever_arm_m
+        if lever is not None:
+            G[V_SLICE] = self.R_car_cam.T @ np.array([0.0, lever, 0.0])
+        return sigma_rps**2 * np.outer(G, G)
 
     def _manoeuvre_cov(self) -> np.ndarray:
         """(9, 9) covariance added to the prior for the manoeuvre retry (camera axes)."""
