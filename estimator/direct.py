@@ -1117,8 +1117,8 @@ class DirectEstimator(EgoMotionEstimator):
         if self._failure(r) is None:
             flags.append("yaw-jump")
             return r
+        ekf.set_prior(x_prior, P_prior)  # (resets x̂ to the prior mean: before the fit)
         res, ekf.x, ekf.P = first
-        ekf.set_prior(x_prior, P_prior)
         return res
 
     def _yaw_cov(self, sigma_rps: float) -> np.ndarray:

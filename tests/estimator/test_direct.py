@@ -340,6 +340,29 @@ def test_yaw_jump_refit_lets_the_images_tell_a_new_turn_rate() -> None:
     assert "yaw-jump" not in rec.flags
 
 
+def test_failed_yaw_refit_keeps_the_first_fit(monkeypatch) -> None:
+    """When the refit itself fails, the record is the first fit, not the prior."""
+    preset = "omni-near"
+    camera, mount, angle = _camera(preset)
+    img_a, img_b, _ = _turn_pair(camera, mount, angle, 10.0, 0.35, 0.3)
+    cfg = default_config("omni", filter={"W0_sigma_rps": 0.025}, manoeuvre_retry=False)
+    _, first = _run(
+        preset, img_a, img_b, t0=0.3, can=10.0, config=replace(cfg, yaw_jump_sigmas=0.0)
+    )
+    calls = {"n": 0}
+    real = DirectEstimator._failure
+
+    def fail_the_refit(self, res):
+        calls["n"] += 1
+        return ("poor-fit", "refit made to fail") if calls["n"] == 2 else real(self, res)
+
+    monkeypatch.setattr(DirectEstimator, "_failure", fail_the_refit)
+    _, rec = _run(preset, img_a, img_b, t0=0.3, can=10.0, config=cfg)
+    assert calls["n"] >= 2 and "yaw-jump" not in rec.flags and not rec.degraded
+    assert abs(rec.yaw_rate_rps) > 0.3  # the first fit's rate, not the prior's 0
+    assert np.allclose(rec.x, first.x, atol=1e-9)
+
+
 def test_grid_search_recovers_a_far_off_speed_prior() -> None:
     """A CAN 20 % high (4 px at the fastest points) is beyond Gauss-Newton's reach from the
     prior; the speed/yaw grid search brings it within reach in one frame pair."""
