@@ -654,11 +654,17 @@ class VehicleDetector:
 
     @staticmethod
     def _energies(
-        a: np.ndarray, warped: dict[float, np.ndarray], ok: np.ndarray, K: float, box: bool
+        a: np.ndarray,
+        warped: dict[float, np.ndarray],
+        ok: np.ndarray,
+        K: float,
+        box: bool,
+        moving: bool = True,
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, Callable]:
         """(min_static E, min_moving E or None, <|g|^2>, the window average) over ok.
 
         E_lambda = <(a - I_lambda)^2>; <.>: Gaussian window K [px] (``box``: K x K box).
+        moving: also the moving hypotheses (lambda < 1); else min_moving E is None.
         """
         okf = ok.astype(np.float32)
         kk = int(K)
@@ -668,6 +674,8 @@ class VehicleDetector:
 
         E_mov = E_sta = None
         for lam, w in warped.items():
+            if lam < 1.0 and not moving:
+                continue
             d = (a - w) * okf
             e = avg(d * d)
             if lam < 1.0:
@@ -710,7 +718,7 @@ class VehicleDetector:
         sigma: float,
     ) -> np.ndarray:
         """r = min_static E / (k + <|g|^2> sigma^2), 0 outside ok (Gaussian window K [px])."""
-        E_sta, _, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False)
+        E_sta, _, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False, moving=False)
         r = E_sta / (k + G2 * sigma * sigma)
         r[~ok] = 0.0
         return r
@@ -800,7 +808,8 @@ class VehicleDetector:
                 # the arc of its tall parts where they reach the edge (low structure, e.g.
                 # guard-rail posts closed into the blob, would pull it along the rail)
                 edge_g = (nz_lab == g) & nz_edge
-                sel = nz[edge_g & nz_tall] if (edge_g & nz_tall).any() else nz[edge_g]
+                tall_g = edge_g & nz_tall
+                sel = nz[tall_g] if tall_g.any() else nz[edge_g]
                 if len(sel):
                     b = self._plan_bearing.ravel()[sel]
                     bearing = float(np.arctan2(np.sin(b).mean(), np.cos(b).mean()))

@@ -96,6 +96,7 @@ from estimator.iekf import (
     data_snooping,
     reset_speed,
     robust_weights,
+    yaw_direction,
 )
 from estimator.motion_model import constraint_rows, map_rays, warp_jacobian
 from estimator.mount import CameraMount
@@ -1124,12 +1125,8 @@ class DirectEstimator(EgoMotionEstimator):
     def _yaw_cov(self, sigma_rps: float) -> np.ndarray:
         """(9, 9) covariance of a change of the car's yaw rate with std sigma_rps (camera
         axes), with the sideways speed it moves the camera by at the lever arm."""
-        G = np.zeros(N_STATE)
-        G[W_SLICE] = self.R_car_cam[2]
-        lever = self.mount.lever_arm_m
-        if lever is not None:
-            G[V_SLICE] = self.R_car_cam.T @ np.array([0.0, lever, 0.0])
-        return sigma_rps**2 * np.outer(G, G)
+        g = yaw_direction(self.mount.lever_arm_m, self.R_car_cam)
+        return sigma_rps**2 * np.outer(g, g)
 
     def _manoeuvre_cov(self) -> np.ndarray:
         """(9, 9) covariance added to the prior for the manoeuvre retry (camera axes)."""
@@ -1145,8 +1142,8 @@ class DirectEstimator(EgoMotionEstimator):
             slip = np.square(np.array(cfg.manoeuvre_V_sigma_mps, float))
             slip[1] = cfg.manoeuvre_slip_sigma_mps**2
             G = np.zeros((N_STATE, 3))  # car-frame W -> state (W and the coupled V)
-            G[W_SLICE] = Rc.T
-            G[V_SLICE] = Rc.T @ np.outer([0.0, lever, 0.0], [0.0, 0.0, 1.0])
+            G[W_SLICE, :2] = Rc.T[:, :2]
+            G[:, 2] = yaw_direction(lever, Rc)
             Q = G @ (np.eye(3) * cfg.manoeuvre_W_sigma_rps**2) @ G.T
             Q[V_SLICE, V_SLICE] += Rc.T @ np.diag(slip) @ Rc
         return Q
@@ -1233,7 +1230,7 @@ class DirectEstimator(EgoMotionEstimator):
             labels = np.full(len(sel), UNUSED, np.int8)
             n_it = 0
             included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
-            speed_info = np.zeros(len(sel))
+            last = None
             n_max = cfg.iterations[cfg.levels - 1 - lvl] if len(sel) else 0
             searches = wide_level is None  # the retry's levels iterate from its wide search
             if n_max and searches and lvl in cfg.search_levels and len(sel) >= cfg.min_points:
@@ -1243,9 +1240,7 @@ class DirectEstimator(EgoMotionEstimator):
                 idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included, off)
                 if len(idx) < cfg.min_points:
                     break
-                if lvl == 0:  # for the record (audits): the finest level's last linearisation
-                    speed_info[:] = 0.0
-                    speed_info[idx] = (C[:, V_SLICE] @ self.R_car_cam[0]) ** 2 / R
+                last = idx, C, R  # the record's point information (audits) comes from it
                 if cfg.line_search:
                     # posterior cost at x̂: truncated residuals (points that left B count as
                     # truncated) + prior term; a step that raised it is halved (backtracking)
@@ -1285,7 +1280,10 @@ class DirectEstimator(EgoMotionEstimator):
             done_levels += n_it > 0
             if lvl == 0:
                 pts_out, labels_out, noise_scale = level.roi_w[sel], labels, s2
-                info_out = speed_info
+                info_out = np.zeros(len(sel))
+                if last is not None:  # the finest level's last linearisation
+                    idx, C, R = last
+                    info_out[idx] = (C[:, V_SLICE] @ self.R_car_cam[0]) ** 2 / R
         return {
             "noise_scale": noise_scale,
             "n_points": len(pts_out),
@@ -1380,14 +1378,10 @@ class DirectEstimator(EgoMotionEstimator):
         if len(rays) > n_points:  # an evenly spread subset is enough to rank the grid
             sub = np.linspace(0, len(rays) - 1, n_points).astype(int)
             rays, a_val = rays[sub], a_val[sub]
-        n = self.K0 / np.linalg.norm(self.K0)
         dirs = np.zeros((2, N_STATE))
         dirs[0, V_SLICE] = x0[V_SLICE]  # d x / d (relative speed scale)
-        dirs[1, W_SLICE] = n  # d x / d (yaw rate about the road normal) [rad/s]
-        lever = self.mount.lever_arm_m
-        if lever is not None:  # kinematic model: the viewpoint slides with the yaw rate
-            yaw_per_n = float((self.R_car_cam @ n)[2])  # car yaw rate per unit along n
-            dirs[1, V_SLICE] = self.R_car_cam.T @ np.array([0.0, lever * yaw_per_n, 0.0])
+        # d x / d (car yaw rate) [rad/s]; kinematic model: the viewpoint slides with it
+        dirs[1] = yaw_direction(self.mount.lever_arm_m, self.R_car_cam)
         # prior std of the coefficient along each direction: sqrt(dᵀ P⁻ d) / |d|²
         dPd = np.einsum("ij,jk,ik->i", dirs, ekf.P_prior, dirs)
         sig = np.sqrt(np.maximum(dPd, 0.0)) / np.maximum(np.sum(dirs**2, axis=1), 1e-24)

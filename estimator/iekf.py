@@ -165,6 +165,17 @@ def nonholonomic_row(lever_m: float, R_car_cam: np.ndarray) -> np.ndarray:
     return h
 
 
+def yaw_direction(lever_m: float | None, R_car_cam: np.ndarray) -> np.ndarray:
+    """(9,) change of x per unit of the car's yaw rate [rad/s]: W about the car's z and,
+    when the rear axle is known (lever_m [m]), the sideways speed ``lever_m x yaw rate``
+    that the kinematic model ties to it (``nonholonomic_row(lever_m, R) @ g == 0``)."""
+    g = np.zeros(N_STATE)
+    g[W_SLICE] = R_car_cam[2]
+    if lever_m is not None:
+        g[V_SLICE] = lever_m * R_car_cam[1]
+    return g
+
+
 def nonholonomic_update(
     x: np.ndarray, P: np.ndarray, lever_m: float, R_car_cam: np.ndarray, sigma_mps: float
 ) -> tuple[np.ndarray, np.ndarray]:

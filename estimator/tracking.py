@@ -454,14 +454,13 @@ class Tracker:
         return nu
 
     def _gated_d2(
-        self, x_prior: np.ndarray, S: np.ndarray, z_all: np.ndarray, bo: np.ndarray
+        self, x_prior: np.ndarray, S_inv: np.ndarray, z_all: np.ndarray, bo: np.ndarray
     ) -> np.ndarray:
         """(T, N) d² of the detections z_all (N, 2) to the points x_prior (T, 2) with
-        innovation covariances S (T, N, 2, 2); inf beyond either gate."""
+        inverse innovation covariances S_inv (T, N, 2, 2); inf beyond either gate."""
         cfg = self.config
         nu = z_all[None, :, :] - x_prior[:, None, :]  # (T, N, 2) ν = z - H x⁻
-        # d² = νᵀ S⁻¹ ν
-        d2 = np.einsum("tni,tni->tn", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+        d2 = np.einsum("tni,tnij,tnj->tn", nu, S_inv, nu)  # d² = νᵀ S⁻¹ ν
         if cfg.gate_m is not None:
             # metric gate; a hidden detection's range is not known: its range error
             # counts up to hidden_range_sigma_m less
@@ -591,9 +590,10 @@ class Tracker:
             x_prior = np.array([t.x[:2] for t in self._tracks])  # (T, 2)
             P_pos = np.array([t.P[:2, :2] for t in self._tracks])  # (T, 2, 2)
             S = P_pos[:, None] + np.array(Rs)[None]  # (T, N, 2, 2) S = H P⁻ Hᵀ + R
-            d2 = self._gated_d2(x_prior, S, z_all, bo)
+            S_inv = np.linalg.inv(S)  # once: the body's points share it
+            d2 = self._gated_d2(x_prior, S_inv, z_all, bo)
             for o, sel in self._body_offsets(x_prior[:, 0]):
-                d2_o = self._gated_d2(x_prior + np.outer(sel * o, [1.0, 0.0]), S, z_all, bo)
+                d2_o = self._gated_d2(x_prior + np.outer(sel * o, [1.0, 0.0]), S_inv, z_all, bo)
                 better = (d2_o < d2_body) & sel[:, None]
                 d2_body = np.where(better, d2_o, d2_body)
                 offset_m = np.where(better, o, offset_m)
