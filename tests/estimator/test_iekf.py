@@ -226,3 +226,19 @@ def test_nonholonomic_update_ties_the_sideways_speed_to_the_yaw_rate() -> None:
     kf.update(np.array([0.0]))
     assert np.allclose(kf.x, x1) and np.allclose(kf.P, P1)
     assert np.allclose(scalar_update(x, P, h, 0.0, 1e-4)[0], x1)
+
+
+@pytest.mark.parametrize("base", ["omni", "pinhole"])
+def test_yaw_direction_is_a_car_yaw_that_keeps_the_rear_axle_straight(base: str) -> None:
+    """A unit step along yaw_direction is 1 rad/s of car yaw rate, moves the viewpoint
+    sideways by the lever arm (a point ahead of the rear axle) and leaves the rear axle's
+    sideways speed (the kinematic pseudo-measurement) at 0; without an axle, W only."""
+    from estimator.iekf import nonholonomic_row, yaw_direction
+
+    mount = CameraMount(position_m=(1.2, 0.3, 1.5), yaw_deg=30.0, base=base, rear_axle_x_m=-1.3)
+    Rc, lever = mount.R_car_cam, mount.lever_arm_m
+    g = yaw_direction(lever, Rc)
+    assert Rc @ g[3:6] == pytest.approx([0.0, 0.0, 1.0], abs=1e-12)
+    assert Rc @ g[0:3] == pytest.approx([0.0, 2.5, 0.0], abs=1e-12)
+    assert float(nonholonomic_row(lever, Rc) @ g) == pytest.approx(0.0, abs=1e-12)
+    assert not yaw_direction(None, Rc)[0:3].any()
