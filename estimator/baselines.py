@@ -30,6 +30,7 @@ from scipy.optimize import least_squares
 
 from estimator.camera import CameraModel
 from estimator.direct import (
+    EGO_BODY_BOX_M,
     INLIER,
     OUTLIER,
     DirectEstimator,
@@ -82,7 +83,7 @@ class FeatureConfig:
     inlier_px: float = 1.0  # [px] reprojection error of a RANSAC inlier
     min_tracks: int = 15  # [-] fewer inliers: degraded, prior kept
     max_range_m: float = 30.0  # [m] farthest road point used
-    ego_box_m: tuple[float, float, float] | None = (5.0, 2.0, 1.0)  # [m] see DirectConfig
+    ego_box_m: tuple[float, float, float] | None = EGO_BODY_BOX_M  # [m] see DirectConfig
     ego_margin_m: float = 0.1  # [m]
     roi_erode_px: int = 6  # [px] distance kept from image edges (body, horizon)
     seed: int = 0  # RANSAC sampling

@@ -103,6 +103,12 @@ from estimator.mount import CameraMount
 
 UNUSED, INLIER, OUTLIER = 0, 1, 2  # point labels (paper Fig. 4b: black, gray, white)
 
+# [m] the ego car's body below the beltline (length, width, height), centred on the car
+# origin: a mid-size car, 5.0 x 1.94 m, beltline 0.80 m with the hood rising to 0.88 m
+# (the car the simulator draws; a 1.0 m box hid half the road from a camera on the
+# window at 1.2 m)
+EGO_BODY_BOX_M = (5.0, 1.94, 0.88)
+
 
 # ------------------------------------------------------------------ config
 @dataclass(frozen=True)
@@ -188,7 +194,11 @@ class DirectConfig:
     step_tol: float = 0.05  # [-] stop a level when the step's Mahalanobis norm is below
     gain_compensation: bool = True  # [-] fit a global brightness gain B -> A each iteration
     max_range_m: float = 30.0  # [m] farthest road point used (horizontal, from the camera)
-    ego_box_m: tuple[float, float, float] | None = (5.0, 2.0, 1.0)  # [m] body below the
+    max_flow_px: float = 64.0  # [px] road points that the prior mean moves farther than this
+    # over the frame pair (full resolution) are not selected: near road seen by a camera low
+    # on the car changes its look between frames beyond brightness constancy (motion blur
+    # of exposure x image speed, perspective scaling); `_too_fast`. <= 0: no limit
+    ego_box_m: tuple[float, float, float] | None = EGO_BODY_BOX_M  # [m] body below the
     # beltline (length, width, height), centred on the car origin: rays through it are masked
     ego_margin_m: float = 0.1  # [m] margin around ego_box_m
     roi_erode_px: int = 3  # [px at each level] distance kept from image edges (body, horizon)
@@ -1311,11 +1321,24 @@ class DirectEstimator(EgoMotionEstimator):
         cfg = self.cfg
         level = self.levels[lvl]
         exclude = excluded[lvl] if excluded is not None else None
+        fast = self._too_fast(level, col_scale)
+        if fast is not None:
+            exclude = fast if exclude is None else exclude | fast
         sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude)
         sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
         off = self._offroad_given[lvl][sel] if self._offroad_given is not None else None
         return level, sel, level.roi_rays[sel], a_val, off
+
+    def _too_fast(self, level: _Level, col_scale: np.ndarray) -> np.ndarray | None:
+        """(M,) bool: candidates that the current x̂ moves more than ``max_flow_px``
+        (full-resolution px) over the pair, to first order (``level.sel_J`` scaled by
+        `_column_scale`); None without a limit or when no candidate is that fast."""
+        if self.cfg.max_flow_px <= 0:
+            return None
+        flow = level.sel_J @ (self.ekf.x * col_scale).astype(np.float32)  # (M, 2) [px]
+        fast = np.einsum("ij,ij->i", flow, flow) > self.cfg.max_flow_px**2
+        return fast if fast.any() else None
 
     def _excluded(self, offroad: np.ndarray | None) -> list[np.ndarray] | None:
         """Per level, (M,) bool: candidates within their support (``mask_support_px``) of a
