@@ -807,7 +807,7 @@ class EgoMotionEstimator:
             self.ekf.fuse_nonholonomic(self.mount.lever_arm_m)
         self.ekf.begin_update()
         extra = self._measure(gray, t_s, dt, flags, reasons, compensate)
-        return make_record(
+        rec = make_record(
             k,
             t_s,
             dt,
@@ -818,6 +818,9 @@ class EgoMotionEstimator:
             reasons=reasons,
             **extra,
         )
+        if np.array_equal(self.ekf.x, self.ekf.x_prior):  # nothing measured: prior kept
+            self.ekf.settle_rates(dt)
+        return rec
 
     def _first(self, gray: np.ndarray, t_s: float, can: float, k: int) -> EgoMotionRecord:
         """First frame: no motion yet. The record shows the prior with the CAN speed."""

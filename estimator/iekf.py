@@ -60,6 +60,9 @@ class FilterConfig:
     # (roll and pitch rates: the camera's vibration on its mount, the body's motion)
     W_walk_yaw_rps: float = 0.1  # [rad/s/sqrt(s)] random walk of the yaw rate (about the
     # road normal); abrupt turns beyond it are the estimator's manoeuvre retry
+    W_tau_s: float = 0.5  # [s] over a frame pair that measures nothing (the prior kept),
+    # the roll/pitch rates (vibration: zero-mean) fall back towards 0 with this time constant
+    # (`IteratedEKF.settle_rates`); without it A settles at A_tau_s x the last fit's rate
     A_from_W: bool = True  # [-] A moves with the roll/pitch part of W between frame pairs
     A_walk_rad: float = float(np.radians(0.1))  # [rad/sqrt(s)] change of A that W does not
     # explain (road slope changes), roll/pitch
@@ -327,6 +330,16 @@ class IteratedEKF:
         self.B, Q = transition(dt_s, self.cfg, self.R_car_cam, self.K0)
         self.Q = Q * q_scale
         self.x, self.P = time_update(self.x, self.P, self.B, self.Q)
+
+    def settle_rates(self, dt_s: float) -> None:
+        """No measurement over the last pair: the roll/pitch part of W (about axes in the
+        road plane) decays by ``exp(-dt / W_tau_s)``; the yaw rate is kept. Over frames
+        that keep the prior, a rate left by the last fit would otherwise move A through
+        every time update (``A_from_W``) and hold it at ``A_tau_s`` times that rate."""
+        n = self.K0 / np.linalg.norm(self.K0)
+        W = self.x[W_SLICE]
+        in_plane = W - n * float(n @ W)
+        self.x[W_SLICE] = W - (1.0 - math.exp(-dt_s / self.cfg.W_tau_s)) * in_plane
 
     def fuse_can(self, v_can_mps: float) -> None:
         """CAN forward speed as a measurement (`can_speed_update`)."""

@@ -675,3 +675,27 @@ def test_road_the_prior_moves_too_far_is_not_selected() -> None:
     est_off = DirectEstimator(camera, mount, replace(est.cfg, max_flow_px=0.0))
     est_off.ekf.x = x
     assert est_off._too_fast(level, _column_scale(DT, SPEED)) is None
+
+
+def test_frames_that_keep_the_prior_let_the_roll_rate_settle() -> None:
+    """A roll rate left in the state by a last fit (3.6 deg/s), then 3 s of black frames
+    that keep the prior: the roll/pitch rates settle (W_tau_s) and A returns to the mount.
+    Held (W_tau_s = inf), the time updates drive A to A_tau_s x the rate (about 3.3 deg),
+    which is what a rectilinear drive that kept the prior for 17 frames showed."""
+    camera, mount, _ = _camera("omni-near")
+    black = np.zeros((camera.height, camera.width), np.uint8)
+    img_a, _, _ = _pair("omni-near")
+
+    def A_after_3_s(cfg: DirectConfig) -> float:
+        est = DirectEstimator(camera, mount, cfg)
+        est.step(img_a, 0.0, SPEED)
+        est.ekf.x[3:6] = mount.R_car_cam.T @ np.array([0.063, 0.0, 0.0])  # roll [rad/s]
+        for k in range(1, 46):
+            rec = est.step(black, k * DT, SPEED)
+            assert rec.degraded
+        return float(np.degrees(np.max(np.abs(rec.x[6:]))))
+
+    cfg = default_config("omni")
+    assert A_after_3_s(cfg) < 0.5
+    held = replace(cfg, filter=replace(cfg.filter, W_tau_s=float("inf")))
+    assert A_after_3_s(held) > 3.0
