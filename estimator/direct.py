@@ -197,7 +197,7 @@ class DirectConfig:
     max_flow_px: float = 64.0  # [px] road points that the prior mean moves farther than this
     # over the frame pair (full resolution) are not selected: near road seen by a camera low
     # on the car changes its look between frames beyond brightness constancy (motion blur
-    # of exposure x image speed, perspective scaling); `_too_fast`. <= 0: no limit
+    # of exposure x image speed, perspective scaling); `too_fast`. <= 0: no limit
     ego_box_m: tuple[float, float, float] | None = EGO_BODY_BOX_M  # [m] body below the
     # beltline (length, width, height), centred on the car origin: rays through it are masked
     ego_margin_m: float = 0.1  # [m] margin around ego_box_m
@@ -613,11 +613,13 @@ def select_points(
     P: np.ndarray | None = None,
     col_scale: np.ndarray | None = None,
     exclude: np.ndarray | None = None,
+    x: np.ndarray | None = None,
 ) -> np.ndarray:
     """Indices into level.roi_idx of the selected points of frame A at a level.
 
     Candidates: gradient magnitude above ``grad_threshold`` (level px), 3x3 maxima
-    with ``nms``, not ``exclude`` (M,) bool (off-road mask). At most ``max_points``
+    with ``nms``, not ``exclude`` (M,) bool (off-road mask), and, given the state x (9,)
+    and col_scale, not moved more than ``max_flow_px`` by it (`too_fast`). At most ``max_points``
     are kept, spread over a grid of ``select_cells``² cells (`_spread_top`), ranked:
 
     - ``selection="information"`` (with the prior covariance P (9, 9)): by how much the
@@ -639,6 +641,8 @@ def select_points(
     if exclude is not None:
         keep &= ~exclude
     sel = np.flatnonzero(keep)
+    if x is not None and col_scale is not None and cfg.max_flow_px > 0:
+        sel = sel[~too_fast(level.sel_J[sel], x, col_scale, cfg.max_flow_px)]
     if len(sel) > cfg.max_points:
         if cfg.selection == "information" and P is not None and col_scale is not None:
             idx = level.roi_idx[sel]
@@ -656,6 +660,16 @@ def select_points(
             score = mag[sel]
         sel = np.sort(sel[_spread_top(level.roi_w[sel], score, cfg.max_points, cfg.select_cells)])
     return sel
+
+
+def too_fast(
+    sel_J: np.ndarray, x: np.ndarray, col_scale: np.ndarray, max_flow_px: float
+) -> np.ndarray:
+    """(N,) bool: points that state x (9,) moves more than max_flow_px (full-resolution
+    px) over the pair, to first order: their selection Jacobian sel_J (N, 2, 9) times x
+    scaled by `_column_scale` (col_scale)."""
+    flow = sel_J @ (x * col_scale).astype(np.float32)  # (N, 2) [px]
+    return np.einsum("ij,ij->i", flow, flow) > max_flow_px**2
 
 
 def _spread_top(w: np.ndarray, score: np.ndarray, n: int, cells: int) -> np.ndarray:
@@ -1324,24 +1338,11 @@ class DirectEstimator(EgoMotionEstimator):
         cfg = self.cfg
         level = self.levels[lvl]
         exclude = excluded[lvl] if excluded is not None else None
-        fast = self._too_fast(level, col_scale)
-        if fast is not None:
-            exclude = fast if exclude is None else exclude | fast
-        sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude)
+        sel = select_points(level, A, lvl, cfg, self.ekf.P_prior, col_scale, exclude, self.ekf.x)
         sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
         off = self._offroad_given[lvl][sel] if self._offroad_given is not None else None
         return level, sel, level.roi_rays[sel], a_val, off
-
-    def _too_fast(self, level: _Level, col_scale: np.ndarray) -> np.ndarray | None:
-        """(M,) bool: candidates that the current x̂ moves more than ``max_flow_px``
-        (full-resolution px) over the pair, to first order (``level.sel_J`` scaled by
-        `_column_scale`); None without a limit or when no candidate is that fast."""
-        if self.cfg.max_flow_px <= 0:
-            return None
-        flow = level.sel_J @ (self.ekf.x * col_scale).astype(np.float32)  # (M, 2) [px]
-        fast = np.einsum("ij,ij->i", flow, flow) > self.cfg.max_flow_px**2
-        return fast if fast.any() else None
 
     def _excluded(self, offroad: np.ndarray | None) -> list[np.ndarray] | None:
         """Per level, (M,) bool: candidates within their support (``mask_support_px``) of a

@@ -29,6 +29,9 @@ from estimator.direct import (
     _column_scale,
     default_config,
     road_roi,
+    select_points,
+    to_gray,
+    too_fast,
 )
 from estimator.homography import homography, make_state
 from estimator.synthetic import RoadTexture, pixel_angle_rad, render_road, to_uint8
@@ -660,21 +663,24 @@ def test_road_the_prior_moves_too_far_is_not_selected() -> None:
     measured: 5.9 % of the candidates are on the other side of 64 px, none beyond 45/90 px."""
     camera, mount, _ = _camera("rectilinear-rear-left")
     est = DirectEstimator(camera, mount)
-    level = est.levels[0]
+    level, cfg = est.levels[0], est.cfg
     x = make_state(mount.R_car_cam.T @ np.array([SPEED, 0.0, 0.0]), np.zeros(3), np.zeros(3))
-    est.ekf.x = x
-    fast = est._too_fast(level, _column_scale(DT, SPEED))
+    cs = _column_scale(DT, SPEED)
+    fast = too_fast(level.sel_J, x, cs, cfg.max_flow_px)
     w_b = camera.project(level.roi_rays @ homography(x, mount.K0, DT).T)
     flow = np.linalg.norm(w_b - level.roi_w, axis=1)  # exact [px]
-    assert fast is not None and 0.2 < fast.mean() < 0.9
+    assert fast.any() and 0.2 < fast.mean() < 0.9
     assert not np.any(fast & (flow < 45.0)) and np.all(fast[flow > 90.0])
     assert np.mean(fast != (flow > 64.0)) < 0.1
-    # at walking pace nothing is that fast; a limit <= 0 is no limit
-    est.ekf.x = x * 0.05
-    assert est._too_fast(level, _column_scale(DT, 0.05 * SPEED)) is None
-    est_off = DirectEstimator(camera, mount, replace(est.cfg, max_flow_px=0.0))
-    est_off.ekf.x = x
-    assert est_off._too_fast(level, _column_scale(DT, SPEED)) is None
+    # at walking pace nothing is that fast
+    assert not too_fast(level.sel_J, x * 0.05, _column_scale(DT, 0.05 * SPEED), 64.0).any()
+    # the selection leaves the fast candidates out; a limit <= 0 is no limit
+    img_a, _, _ = _pair("rectilinear-rear-left")
+    frame = est._frame(to_gray(img_a, (camera.height, camera.width)), 0.0)
+    sel = select_points(level, frame, 0, cfg, est.ekf.P, cs, None, x)
+    assert len(sel) >= cfg.min_points and not fast[sel].any()
+    sel_off = select_points(level, frame, 0, replace(cfg, max_flow_px=0.0), est.ekf.P, cs, None, x)
+    assert fast[sel_off].any()
 
 
 def test_frames_that_keep_the_prior_let_the_roll_rate_settle() -> None:
