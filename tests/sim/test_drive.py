@@ -146,3 +146,30 @@ def test_interrupted_render_is_not_complete_and_resumes(tmp_path, monkeypatch):
 def test_other_scenario_in_same_folder_is_refused(drive_dir):
     with pytest.raises(DriveError, match="different scenario"):
         render_drive(tiny(seed=4), drive_dir, progress=False)
+
+
+def test_resume_with_another_face_size_is_refused(drive_dir, tmp_path):
+    import shutil
+
+    copy = tmp_path / "d"
+    shutil.copytree(drive_dir, copy)
+    (copy / "gt" / "000004.json").unlink()
+    (copy / "manifest.json").unlink()
+    face = json.loads((copy / "render.json").read_text())["face_px"]
+    with pytest.raises(DriveError, match="face_px"):
+        render_drive(tiny(), copy, progress=False, face_px=2 * face)
+    assert not (copy / "gt" / "000004.json").exists()  # nothing rendered into the mix
+
+
+@pytest.mark.parametrize("preset", ["omni-near", "omni-far", "rectilinear-rear-left"])
+def test_default_face_is_finer_than_the_camera(preset):
+    from estimator.camera_io import resolve_camera
+    from estimator.synthetic import pixel_angle_rad
+
+    cam, _ = resolve_camera(preset)
+    face = drive_mod.default_face_px(cam)
+    texel_rad = np.arctan(2.0 / (face - 3))  # at the face centre, its coarsest
+    angle = pixel_angle_rad(cam)[cam.valid_mask()]
+    assert texel_rad * drive_mod.FACE_OVERSAMPLING <= np.percentile(angle, 1) * 1.0001
+    # one size smaller would not be: the rule does not overshoot by more than 2x
+    assert np.arctan(2.0 / (face / 2 - 3)) * drive_mod.FACE_OVERSAMPLING > np.percentile(angle, 1)
