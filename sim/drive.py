@@ -44,10 +44,16 @@ from sim.camera_motion import (
     motion_between,
 )
 from sim.can import can_at, can_messages
-from sim.gl import pyrender
+from sim.gl import pyrender, set_depth_offset
 from sim.highway import EGO_REAR_AXLE_X_M, WorldFrame, simulate
 from sim.renderer import OmniRenderer
-from sim.scene import build_static_scene, decode_id_image, vehicle_corners_world, vehicles_mesh
+from sim.scene import (
+    DEPTH_OFFSET,
+    build_static_scene,
+    decode_id_image,
+    vehicle_corners_world,
+    vehicles_mesh,
+)
 from sim.sensor import SensorModel, apply_sensor, gain_sequence, vignetting_gain
 
 SKY_RGB = (0.62, 0.74, 0.90)
@@ -90,6 +96,13 @@ def default_face_px(camera: CameraModel) -> int:
     return int(np.clip(2 ** np.ceil(np.log2(need)), 128, MAX_FACE_PX))
 
 
+def static_pyrender_mesh(mesh) -> pyrender.Mesh:
+    """pyrender mesh of a static scene mesh, drawn with the depth offset of its surface
+    (`sim.scene.DEPTH_OFFSET`: grass and markings share the road's plane)."""
+    m = pyrender.Mesh.from_trimesh(mesh, smooth=False)
+    return set_depth_offset(m, DEPTH_OFFSET.get(mesh.metadata.get("name"), 0.0))
+
+
 class WorldScenes:
     """pyrender colour and id scenes of one drive: static world + per-frame vehicles."""
 
@@ -97,7 +110,7 @@ class WorldScenes:
         self.color = pyrender.Scene(bg_color=[*SKY_RGB, 1.0], ambient_light=[0.35, 0.35, 0.35])
         self.ids = pyrender.Scene(bg_color=[0, 0, 0, 1.0], ambient_light=[1.0, 1.0, 1.0])
         for m in static_meshes:
-            self.color.add(pyrender.Mesh.from_trimesh(m, smooth=False))
+            self.color.add(static_pyrender_mesh(m))
         for m in id_static:
             self.ids.add(pyrender.Mesh.from_trimesh(m, smooth=False))
         sun = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
@@ -309,8 +322,12 @@ class DriveRenderer:
         renderer = self._open()
         pose = self.poses[k]
         self._scenes.set_vehicles(self.frames[k])
-        atlas, depth = renderer.render_atlas(self._scenes.color, pose.T_world_actual, depth=True)
-        id_atlas, _ = renderer.render_atlas(self._scenes.ids, pose.T_world_actual, flat=True)
+        atlas, _ = renderer.render_atlas(self._scenes.color, pose.T_world_actual)
+        # depth from the id scene: the same surfaces, without the colour scene's depth
+        # offsets (`sim.scene.DEPTH_OFFSET`), which push far grass back by metres
+        id_atlas, depth = renderer.render_atlas(
+            self._scenes.ids, pose.T_world_actual, flat=True, depth=True
+        )
         image = renderer.remap_color(atlas)
         ids = decode_id_image(renderer.remap_nearest(id_atlas))
         range_m = renderer.range_image(depth)

@@ -93,7 +93,13 @@ from estimator.mount import CameraMount
 from scenarios.config import SensorConfig, VibrationConfig
 from sim import scene as scene_mod
 from sim.camera_motion import CameraPose, T_world_car, Vibration, camera_pose
-from sim.drive import WorldScenes, default_face_px, imaged_mask, scene_flow_px
+from sim.drive import (
+    WorldScenes,
+    default_face_px,
+    imaged_mask,
+    scene_flow_px,
+    static_pyrender_mesh,
+)
 from sim.gl import pyrender  # OSMesa platform and pyrender fixes (sim/gl.py)
 from sim.highway import (
     EGO_HEIGHT_M,
@@ -646,7 +652,7 @@ class OmniEnvRenderer:
         self._static_nodes = []
         sc = self._scenes
         for m in meshes:
-            node = sc.color.add(pyrender.Mesh.from_trimesh(m, smooth=False))
+            node = sc.color.add(static_pyrender_mesh(m))
             self._static_nodes.append((sc.color, node))
         occluder = id_occluder_mesh(meshes)
         if occluder is not None:
@@ -718,11 +724,13 @@ class OmniEnvRenderer:
         pose = camera_pose(
             T_world_car(ego.x_m, ego.y_m, ego.yaw_rad), self.mount, obs.vibration, t_s
         )
-        atlas, depth = renderer.render_atlas(self._scenes.color, pose.T_world_actual, depth=blur)
+        atlas, _ = renderer.render_atlas(self._scenes.color, pose.T_world_actual)
         image = renderer.remap_color(atlas)
-        ids = None
-        if need_ids:
-            id_atlas, _ = renderer.render_atlas(self._scenes.ids, pose.T_world_actual, flat=True)
+        ids = depth = None
+        if need_ids:  # depth from the id scene (no depth offsets: `sim.drive.DriveRenderer`)
+            id_atlas, depth = renderer.render_atlas(
+                self._scenes.ids, pose.T_world_actual, flat=True, depth=blur
+            )
             ids = decode_id_image(renderer.remap_nearest(id_atlas))
             ids[~self.mask] = -1
         flow = None

@@ -49,8 +49,12 @@ SHOULDER_M = 1.0  # [m] asphalt beyond a continuous edge line
 MARK_WIDTH_M = 0.15  # [m]
 DASH_ON_M = 3.0  # [m] painted part of a striped line
 DASH_OFF_M = 9.0  # [m] gap of a striped line
-MARK_Z_M = 0.01  # [m] markings above the road (no z-fighting)
-GROUND_Z_M = -0.03  # [m] grass below the road
+# The road, its markings and the grass all lie in the road plane z = 0; which of them is
+# seen where they overlap is settled by depth offsets when drawn (`sim.gl`), by mesh name
+# (> 0: behind the road, < 0: in front). Lifting the markings 1 cm and dropping the grass
+# 3 cm, as before, put them off the plane the estimator assumes: seen from the omni
+# camera, markings 0.5 % nearer and grass 1.5 % farther than the road at their rays.
+DEPTH_OFFSET = {"markings": -1.0, "ground": 1.0}
 URBAN_SPEED_MPS = 12.0  # [m/s] at or below: kerbs, sidewalks, buildings; above: guard-rails
 
 STRIPED, CONTINUOUS, CONTINUOUS_LINE = 1, 2, 3  # highway-env LineType codes
@@ -356,7 +360,7 @@ def _markings_mesh(lanes: list[LaneGeometry]) -> trimesh.Trimesh | None:
             if kind in (CONTINUOUS, CONTINUOUS_LINE):
                 # an edge line is painted on its lane: inset by half its width
                 centre = edge - sign * half * nl
-                v, f, n = _strip(centre + half * nl, centre - half * nl, MARK_Z_M)
+                v, f, n = _strip(centre + half * nl, centre - half * nl, 0.0)
                 parts.add(v, f, n, np.array(WHITE, np.uint8))
             elif kind == STRIPED:
                 k = np.arange(np.floor(s[0] / period), np.ceil(s[-1] / period) + 1)
@@ -373,14 +377,14 @@ def _markings_mesh(lanes: list[LaneGeometry]) -> trimesh.Trimesh | None:
                 nx, ny = -np.sin(yaw), np.cos(yaw)
                 lft = np.stack([cx + half * nx, cy + half * ny], axis=-1)
                 rgt = np.stack([cx - half * nx, cy - half * ny], axis=-1)
-                v, f, n = _strip(lft, rgt, MARK_Z_M)
+                v, f, n = _strip(lft, rgt, 0.0)
                 parts.add(v, f, n, np.array(WHITE, np.uint8))
     return parts.mesh("markings")
 
 
 def ground_grid(area: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(v, f, n) of the ground: a grid of ~25-m cells over area (xmin, xmax, ymin, ymax)
-    [m] at GROUND_Z_M, one strip per row of cells (facing +z)."""
+    [m] in the road plane (z = 0), one strip per row of cells (facing +z)."""
     xmin, xmax, ymin, ymax = area
     nx = max(1, int(np.ceil((xmax - xmin) / 25.0)))
     ny = max(1, int(np.ceil((ymax - ymin) / 25.0)))
@@ -388,7 +392,7 @@ def ground_grid(area: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.nda
     # left = upper row, right = lower row
     upper = np.stack(np.broadcast_arrays(xs[None, :], ys[1:, None]), axis=-1)
     lower = np.stack(np.broadcast_arrays(xs[None, :], ys[:-1, None]), axis=-1)
-    return _strip(upper, lower, GROUND_Z_M)
+    return _strip(upper, lower, 0.0)
 
 
 def _ground_mesh(area: tuple[float, ...], rng: np.random.Generator) -> trimesh.Trimesh:

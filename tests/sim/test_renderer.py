@@ -86,3 +86,46 @@ def test_rendered_box_silhouette_matches_camera_model(preset):
     Pw = P @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
     inside = np.all((Pw > lo - 0.05) & (Pw < hi + 0.05), axis=1)
     assert inside.mean() > 0.98
+
+
+def _flat_quad(x0, x1, y0, y1, rgb, name):
+    v = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+    m = trimesh.Trimesh(vertices=v, faces=[[0, 1, 2], [0, 2, 3]], process=False)
+    m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=np.tile([*rgb, 255], (4, 1)))
+    m.metadata["name"] = name
+    return m
+
+
+def test_coplanar_road_markings_and_grass_are_each_seen_where_they_lie():
+    """Grass, road and a marking all in z = 0 (the estimator's road plane): the depth
+    offsets (`sim.scene.DEPTH_OFFSET`) decide what is seen, without z-fighting, out to
+    about 100 m (rays 1 degree below the horizon)."""
+    from sim.drive import static_pyrender_mesh
+
+    cam, mount = resolve_camera({"preset": "omni-near", "width": 240, "height": 240})
+    T_world_cam = make_T(mount.R_car_cam, mount.position_m)
+    grass = _flat_quad(-300, 300, -300, 300, (0, 255, 0), "ground")
+    road = _flat_quad(-300, 300, -4, 4, (0, 0, 255), "road")
+    mark = _flat_quad(-300, 300, 1.9, 2.1, (255, 0, 0), "markings")
+    scene = pyrender.Scene(bg_color=[0, 0, 0, 1], ambient_light=[1, 1, 1])
+    for m in (grass, mark, road):  # drawn in an order the offsets must overrule
+        scene.add(static_pyrender_mesh(m))
+    r = OmniRenderer(cam, face_px=512)
+    try:
+        atlas, _ = r.render_atlas(scene, T_world_cam, flat=True)
+        rgb = r.remap_nearest(atlas)
+    finally:
+        r.close()
+    rays = cam.pixel_rays()
+    hit = cam.valid_mask() & (rays[..., 2] > 0.02)  # the road plane, up to ~100 m
+    # the world point of each pixel's ray on z = 0 (camera at the mount, nominal axes)
+    d = rays[hit] @ T_world_cam[:3, :3].T
+    p = T_world_cam[:3, 3] - d * (T_world_cam[2, 3] / d[:, 2:3])
+    y = p[:, 1]
+    seen = rgb[hit]
+    clear = lambda lo, hi: (np.abs(y) > lo) & (np.abs(y) < hi)  # noqa: E731  one surface, 0.1 m from edges
+    on_mark, on_road = (y > 2.0 - 0.05) & (y < 2.0 + 0.05), clear(0, 3.9) & ~((y > 1.8) & (y < 2.2))
+    assert on_mark.sum() > 20 and np.all(seen[on_mark] == (255, 0, 0))
+    assert on_road.sum() > 1000 and np.all(seen[on_road] == (0, 0, 255))
+    on_grass = clear(4.1, 1e9)
+    assert on_grass.sum() > 1000 and np.all(seen[on_grass] == (0, 255, 0))

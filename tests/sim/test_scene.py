@@ -47,6 +47,18 @@ def roundabout():
     return b, area, {m.metadata["name"]: m for m in meshes}
 
 
+@pytest.mark.parametrize("fixture", ["highway", "roundabout"])
+def test_road_markings_and_grass_lie_in_the_road_plane(fixture, request):
+    """The estimator's road plane is z = 0: the road, its markings and the grass are all
+    in it (their overlap is settled by depth offsets when drawn, `sim.scene.DEPTH_OFFSET`)."""
+    from sim.scene import DEPTH_OFFSET
+
+    by_name = request.getfixturevalue(fixture)[-2 if fixture == "highway" else -1]
+    for name in ("road", "markings", "ground"):
+        assert np.all(by_name[name].vertices[:, 2] == 0.0), name
+    assert DEPTH_OFFSET["ground"] > 0 > DEPTH_OFFSET["markings"]  # grass behind, paint in front
+
+
 def _inside_triangles(pts: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
     """(M,) bool: which 2-D points lie in the xy projection of some triangle."""
     tri = mesh.vertices[mesh.faces][:, :, :2]  # (F, 3, 2)
@@ -123,7 +135,7 @@ def test_road_covers_every_lane_centre_in_the_area(which, highway, roundabout):
 def test_striped_line_is_dashed_3_on_9_off(highway):
     _, _, area, meshes, _ = highway
     mk = meshes["markings"]
-    assert np.allclose(mk.vertices[:, 2], 0.01)
+    assert np.all(mk.vertices[:, 2] == 0.0)  # in the road plane (drawn in front by depth offset)
     assert np.all(mk.visual.vertex_colors[:, :3] > 200)  # white paint
     # lanes 0/1 boundary: highway-env lane 1 (y_hw = 4) draws it striped, world y = -2
     v = mk.vertices[np.abs(mk.vertices[:, 1] + 2.0) < 0.1]
