@@ -34,7 +34,6 @@ from estimator.camera import CameraModel
 from estimator.camera_io import resolve_camera, save_camera
 from estimator.mount import CameraMount
 from estimator.progress import track
-from estimator.synthetic import pixel_angle_rad
 from scenarios.config import Scenario
 from sim.camera_motion import (
     CameraPose,
@@ -46,7 +45,7 @@ from sim.camera_motion import (
 from sim.can import can_at, can_messages
 from sim.gl import pyrender, set_depth_offset
 from sim.highway import EGO_REAR_AXLE_X_M, WorldFrame, simulate
-from sim.renderer import OmniRenderer
+from sim.renderer import OmniRenderer, finest_pixel_angle_rad
 from sim.scene import (
     DEPTH_OFFSET,
     build_static_scene,
@@ -80,7 +79,8 @@ class DriveResult:
 # image is an upsampling of the face, and its texture (filtered, aliased) on the face's
 # grid: a pattern fixed to the camera, which pulls the motion seen in the images towards
 # zero. Faces at least this many times finer than the camera's finest pixel keep the
-# camera's sampling in charge. Measured on racetrack-omni-near frames 24-60: 512 px faces
+# camera's sampling in charge (and `sim.renderer.prefilter_sigma_px` low-passes them back
+# to the camera's pixel). Measured on racetrack-omni-near frames 24-60: 512 px faces
 # (0.8x) speed 1.85 % / yaw bias -0.78 deg/s, 1024 px (1.6x) 0.90 % / -0.63 deg/s.
 FACE_OVERSAMPLING = 1.5
 MAX_FACE_PX = 2048
@@ -89,8 +89,7 @@ MAX_FACE_PX = 2048
 def default_face_px(camera: CameraModel) -> int:
     """Cube-face size [px] (a power of two, 128..MAX_FACE_PX) whose texels at the face
     centre are FACE_OVERSAMPLING times finer than the camera's finest pixels."""
-    angle = pixel_angle_rad(camera)[camera.valid_mask()]
-    finest_rad = float(np.percentile(angle[angle > 0], 1)) if np.any(angle > 0) else 0.01
+    finest_rad = finest_pixel_angle_rad(camera)
     # face focal length (face_px - 3) / 2 [px per unit tan] (`CubeMapLookup.build`)
     need = 2.0 * FACE_OVERSAMPLING / np.tan(finest_rad) + 3.0
     return int(np.clip(2 ** np.ceil(np.log2(need)), 128, MAX_FACE_PX))
@@ -98,7 +97,7 @@ def default_face_px(camera: CameraModel) -> int:
 
 def static_pyrender_mesh(mesh) -> pyrender.Mesh:
     """pyrender mesh of a static scene mesh, drawn with the depth offset of its surface
-    (`sim.scene.DEPTH_OFFSET`: grass and markings share the road's plane)."""
+    (`sim.scene.DEPTH_OFFSET`: road, grass and markings share one plane)."""
     m = pyrender.Mesh.from_trimesh(mesh, smooth=False)
     return set_depth_offset(m, DEPTH_OFFSET.get(mesh.metadata.get("name"), 0.0))
 

@@ -98,8 +98,11 @@ pyrender.texture.Texture._add_to_context = _add_to_context_anisotropic
 # centimetres to settle which one is seen puts it off that plane: grass 3 cm low is
 # 1.5 % farther than the plane says (seen from 1.95 m), a speed bias of that size on
 # every road point it holds. Instead, the depth test settles it: a primitive with a depth
-# offset is drawn with glPolygonOffset(offset, offset) (positive: behind, in units of the
-# depth buffer's resolution at its depth and slope), which never moves a pixel.
+# offset is drawn with glPolygonOffset(offset, offset) (positive: behind; in units of the
+# depth buffer's resolution and of the surface's depth slope per pixel). That changes the
+# depth test, not where a surface is drawn; the depth it writes is off by up to a pixel's
+# worth of slope (metres for grass near the horizon), so ranges come from a scene drawn
+# without offsets (`sim.drive.DriveRenderer.produce`).
 DEPTH_OFFSET_ATTR = "omnibench_depth_offset"
 
 _original_bind_and_draw = pyrender.renderer.Renderer._bind_and_draw_primitive

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from estimator.camera import CameraModel
+from estimator.synthetic import pixel_angle_rad
 from sim.gl import pyrender
 
 # Face directions in camera coordinates and an "up" vector for each (GL y).
@@ -110,6 +111,21 @@ class CubeMapLookup:
         return cls(used_faces, face_px, focal, map_x, map_y, m1, m2, cos_axis, valid, body_only)
 
 
+def finest_pixel_angle_rad(camera: CameraModel) -> float:
+    """Angle between neighbouring pixel rays where the camera samples finest [rad] (1st
+    percentile over its valid view; 0.01 when it has none)."""
+    angle = pixel_angle_rad(camera)[camera.valid_mask()]
+    return float(np.percentile(angle[angle > 0], 1)) if np.any(angle > 0) else 0.01
+
+
+def prefilter_sigma_px(camera: CameraModel, focal_px: float) -> float:
+    """Gaussian sigma [face px] that low-passes faces of focal length focal_px [px] to half
+    the camera's finest pixel at the face centre; 0 when the faces are not finer."""
+    finest_rad = finest_pixel_angle_rad(camera)
+    texel_rad = float(np.arctan(1.0 / focal_px))  # at the face centre, its coarsest
+    return 0.5 * finest_rad / texel_rad if finest_rad > texel_rad else 0.0
+
+
 class OmniRenderer:
     """Renders camera images of a pyrender scene pair (colour, vehicle id).
 
@@ -133,6 +149,11 @@ class OmniRenderer:
         self.cache_body_faces = cache_body_faces
         self._face_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.lookup = CubeMapLookup.build(camera, face_px)
+        # anti-aliasing: a camera pixel is a bilinear point sample of a face; faces finer
+        # than the camera are low-passed first, to about the camera's pixel (Gaussian,
+        # sigma half a camera pixel at the face centre), so that texture finer than the
+        # pixel averages out instead of aliasing (`remap_color`)
+        self.prefilter_sigma_px = prefilter_sigma_px(camera, self.lookup.focal_px)
         fov = 2.0 * np.arctan((face_px / 2.0) / self.lookup.focal_px)
         self._gl_camera = pyrender.PerspectiveCamera(
             yfov=fov, aspectRatio=1.0, znear=z_near, zfar=z_far
@@ -181,8 +202,13 @@ class OmniRenderer:
         return atlas, (np.concatenate(depths, axis=0) if depth else None)
 
     def remap_color(self, atlas: np.ndarray) -> np.ndarray:
-        """(H, W, 3) uint8 image by bilinear lookup into the colour atlas."""
+        """(H, W, 3) uint8 image by bilinear lookup into the colour atlas (low-passed first,
+        ``prefilter_sigma_px``)."""
         lk = self.lookup
+        if self.prefilter_sigma_px > 0:  # face by face: no blur across a face border
+            F, sig = lk.face_px, self.prefilter_sigma_px
+            faces = [atlas[i * F : (i + 1) * F] for i in range(len(lk.faces))]
+            atlas = np.concatenate([cv2.GaussianBlur(f, (0, 0), sig) for f in faces])
         return cv2.remap(atlas, lk.map1, lk.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
     def remap_nearest(self, atlas: np.ndarray) -> np.ndarray:

@@ -50,11 +50,14 @@ MARK_WIDTH_M = 0.15  # [m]
 DASH_ON_M = 3.0  # [m] painted part of a striped line
 DASH_OFF_M = 9.0  # [m] gap of a striped line
 # The road, its markings and the grass all lie in the road plane z = 0; which of them is
-# seen where they overlap is settled by depth offsets when drawn (`sim.gl`), by mesh name
-# (> 0: behind the road, < 0: in front). Lifting the markings 1 cm and dropping the grass
-# 3 cm, as before, put them off the plane the estimator assumes: seen from the omni
-# camera, markings 0.5 % nearer and grass 1.5 % farther than the road at their rays.
-DEPTH_OFFSET = {"markings": -1.0, "ground": 1.0}
+# seen where they overlap is settled by depth offsets when drawn (`sim.gl`), by mesh name:
+# markings before the road before the grass. All three are pushed back (> 0), none pulled
+# forward: nothing lies below the road, so pushing it back never hides what stands on it,
+# whereas markings pulled forward by a pixel's worth of depth slope were drawn over the
+# tyres and lower bodies of cars seen at grazing angles. Lifting the markings 1 cm and
+# dropping the grass 3 cm, as before, put them off the plane the estimator assumes: seen
+# from the omni camera, markings 0.5 % nearer and grass 1.5 % farther than the road.
+DEPTH_OFFSET = {"markings": 1.0, "road": 2.0, "ground": 3.0}
 URBAN_SPEED_MPS = 12.0  # [m/s] at or below: kerbs, sidewalks, buildings; above: guard-rails
 
 STRIPED, CONTINUOUS, CONTINUOUS_LINE = 1, 2, 3  # highway-env LineType codes

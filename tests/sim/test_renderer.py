@@ -99,7 +99,10 @@ def _flat_quad(x0, x1, y0, y1, rgb, name):
 def test_coplanar_road_markings_and_grass_are_each_seen_where_they_lie():
     """Grass, road and a marking all in z = 0 (the estimator's road plane): the depth
     offsets (`sim.scene.DEPTH_OFFSET`) decide what is seen, without z-fighting, out to
-    about 100 m (rays 1 degree below the horizon)."""
+    about 100 m (rays 1 degree below the horizon), and a car standing on the marking
+    25 m away is not painted over by it."""
+    import cv2
+
     from sim.drive import static_pyrender_mesh
 
     cam, mount = resolve_camera({"preset": "omni-near", "width": 240, "height": 240})
@@ -110,6 +113,8 @@ def test_coplanar_road_markings_and_grass_are_each_seen_where_they_lie():
     scene = pyrender.Scene(bg_color=[0, 0, 0, 1], ambient_light=[1, 1, 1])
     for m in (grass, mark, road):  # drawn in an order the offsets must overrule
         scene.add(static_pyrender_mesh(m))
+    lo, hi = np.array([-27.0, 1.1, 0.0]), np.array([-23.0, 2.9, 1.5])  # a car on the marking
+    scene.add(pyrender.Mesh.from_trimesh(_box_mesh((lo + hi) / 2, hi - lo, 7), smooth=False))
     r = OmniRenderer(cam, face_px=512)
     try:
         atlas, _ = r.render_atlas(scene, T_world_cam, flat=True)
@@ -117,7 +122,13 @@ def test_coplanar_road_markings_and_grass_are_each_seen_where_they_lie():
     finally:
         r.close()
     rays = cam.pixel_rays()
-    hit = cam.valid_mask() & (rays[..., 2] > 0.02)  # the road plane, up to ~100 m
+    dirs_w = rays.reshape(-1, 3) @ T_world_cam[:3, :3].T
+    car = _ray_hits_box(T_world_cam[:3, 3], dirs_w, lo, hi).reshape(rays.shape[:2])
+    car &= cam.valid_mask()
+    inner = cv2.erode(car.astype(np.uint8), np.ones((3, 3))) > 0  # 1 px from its outline
+    assert inner.sum() > 15 and np.all(rgb[inner] == (7, 0, 0))
+    near_car = cv2.dilate(car.astype(np.uint8), np.ones((3, 3))) > 0
+    hit = cam.valid_mask() & (rays[..., 2] > 0.02) & ~near_car  # the road plane, to ~100 m
     # the world point of each pixel's ray on z = 0 (camera at the mount, nominal axes)
     d = rays[hit] @ T_world_cam[:3, :3].T
     p = T_world_cam[:3, 3] - d * (T_world_cam[2, 3] / d[:, 2:3])
@@ -129,3 +140,25 @@ def test_coplanar_road_markings_and_grass_are_each_seen_where_they_lie():
     assert on_road.sum() > 1000 and np.all(seen[on_road] == (0, 0, 255))
     on_grass = clear(4.1, 1e9)
     assert on_grass.sum() > 1000 and np.all(seen[on_grass] == (0, 255, 0))
+
+
+def test_faces_finer_than_the_camera_are_low_passed_to_its_pixel():
+    """The anti-aliasing prefilter: half a camera pixel (at the face centre) in face
+    pixels when the faces are finer than the camera, none when they are coarser; a flat
+    face stays flat (each face blurred alone, no dark seams)."""
+    from sim.renderer import finest_pixel_angle_rad, prefilter_sigma_px
+
+    cam, _ = resolve_camera("omni-near")
+    finest = finest_pixel_angle_rad(cam)
+    fine, coarse = 1.0 / (finest / 2.0), 1.0 / (finest * 2.0)  # focal: texels 2x finer / coarser
+    assert prefilter_sigma_px(cam, fine) == pytest.approx(1.0, rel=0.01)
+    assert prefilter_sigma_px(cam, coarse) == 0.0
+    small, _ = resolve_camera({"preset": "omni-near", "width": 120, "height": 120})
+    r = OmniRenderer(small, face_px=256)
+    try:
+        assert r.prefilter_sigma_px > 0
+        F, n = r.lookup.face_px, len(r.lookup.faces)
+        img = r.remap_color(np.full((n * F, F, 3), 90, np.uint8))
+        assert np.all(img[small.valid_mask()] == 90)
+    finally:
+        r.close()

@@ -56,7 +56,9 @@ def test_road_markings_and_grass_lie_in_the_road_plane(fixture, request):
     by_name = request.getfixturevalue(fixture)[-2 if fixture == "highway" else -1]
     for name in ("road", "markings", "ground"):
         assert np.all(by_name[name].vertices[:, 2] == 0.0), name
-    assert DEPTH_OFFSET["ground"] > 0 > DEPTH_OFFSET["markings"]  # grass behind, paint in front
+    # paint before asphalt before grass, all pushed back: nothing is drawn over what
+    # stands on the road
+    assert 0 < DEPTH_OFFSET["markings"] < DEPTH_OFFSET["road"] < DEPTH_OFFSET["ground"]
 
 
 def _inside_triangles(pts: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
