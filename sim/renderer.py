@@ -202,13 +202,16 @@ class OmniRenderer:
         return atlas, (np.concatenate(depths, axis=0) if depth else None)
 
     def remap_color(self, atlas: np.ndarray) -> np.ndarray:
-        """(H, W, 3) uint8 image by bilinear lookup into the colour atlas (low-passed first,
-        ``prefilter_sigma_px``)."""
+        """(H, W, 3) uint8 image by bilinear lookup into the colour atlas, which is first
+        low-passed in place (``prefilter_sigma_px``)."""
         lk = self.lookup
-        if self.prefilter_sigma_px > 0:  # face by face: no blur across a face border
+        if self.prefilter_sigma_px > 0:  # face by face (no blur across a face border), in
+            # place; faces that only show the car body (outside the valid view) are left
             F, sig = lk.face_px, self.prefilter_sigma_px
-            faces = [atlas[i * F : (i + 1) * F] for i in range(len(lk.faces))]
-            atlas = np.concatenate([cv2.GaussianBlur(f, (0, 0), sig) for f in faces])
+            for i, name in enumerate(lk.faces):
+                if name not in lk.body_only:
+                    face = atlas[i * F : (i + 1) * F]
+                    cv2.GaussianBlur(face, (0, 0), sig, dst=face)
         return cv2.remap(atlas, lk.map1, lk.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
     def remap_nearest(self, atlas: np.ndarray) -> np.ndarray:

@@ -52,9 +52,9 @@ DASH_OFF_M = 9.0  # [m] gap of a striped line
 # The road, its markings and the grass all lie in the road plane z = 0; which of them is
 # seen where they overlap is settled by depth offsets when drawn (`sim.gl`), by mesh name:
 # markings before the road before the grass. All three are pushed back (> 0), none pulled
-# forward: nothing lies below the road, so pushing it back never hides what stands on it,
-# whereas markings pulled forward by a pixel's worth of depth slope were drawn over the
-# tyres and lower bodies of cars seen at grazing angles. Lifting the markings 1 cm and
+# forward: nothing lies below the road, so pushing it back cannot hide what stands on it
+# (a surface pulled forward by a pixel's worth of depth slope could cover it; not seen in
+# `tests/sim/test_renderer.py`, but not possible this way). Lifting the markings 1 cm and
 # dropping the grass 3 cm, as before, put them off the plane the estimator assumes: seen
 # from the omni camera, markings 0.5 % nearer and grass 1.5 % farther than the road.
 DEPTH_OFFSET = {"markings": 1.0, "road": 2.0, "ground": 3.0}
