@@ -405,9 +405,10 @@ def test_offroad_mask_keeps_the_next_pair_off_a_moving_object() -> None:
     est.step(f0, 0.3, SPEED * CAN_SCALE)
     est.step(f1, 0.3 + DT, SPEED * CAN_SCALE)
     assert est._offroad is not None
-    m = est._offroad  # mask level 1: half resolution
-    u0, v0 = (box[0] + shift[0]) // 2, (box[1] + shift[1]) // 2
-    assert m[v0 + 2 : v0 + box[3] // 2 - 2, u0 + 2 : u0 + box[2] // 2 - 2].mean() > 0.3
+    m = est._offroad  # at the mask level
+    sc = int(est.levels[est._mask_lvl].scale)
+    u0, v0 = (box[0] + shift[0]) // sc, (box[1] + shift[1]) // sc
+    assert m[v0 + 2 : v0 + box[3] // sc - 2, u0 + 2 : u0 + box[2] // sc - 2].mean() > 0.3
     assert m.mean() < 0.05  # the road itself is not marked
     rec = est.step(f2, 0.3 + 2 * DT, SPEED * CAN_SCALE)
     u, v = rec.points_px.T
@@ -415,6 +416,51 @@ def test_offroad_mask_keeps_the_next_pair_off_a_moving_object() -> None:
     in_patch = (u >= bu) & (u < bu + box[2]) & (v >= bv) & (v < bv + box[3])
     assert not in_patch.any()
     assert _errors(rec, x12)[0] < 1.0
+
+
+def test_offroad_map_that_leaves_no_points_is_dropped() -> None:
+    """A map that marks the whole view (made from a poor fit) does not make the next pair
+    'textureless': the pair is fitted again without it, and the record says so."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    f0, f1, _ = _pair(preset, 0, 0.3)
+    _, f2, x12 = _pair(preset, 0, 0.3 + DT)
+    est = DirectEstimator(camera, mount)
+    est.step(f0, 0.3, SPEED * CAN_SCALE)
+    est.step(f1, 0.3 + DT, SPEED * CAN_SCALE)
+    assert est._offroad is not None
+    est._offroad[:] = 1  # everything off the road
+    rec = est.step(f2, 0.3 + 2 * DT, SPEED * CAN_SCALE)
+    assert "offroad-map-dropped" in rec.flags and "textureless" not in rec.flags
+    assert not rec.degraded and rec.n_inliers > 100
+    assert _errors(rec, x12)[0] < 1.0
+
+
+@pytest.mark.parametrize("gain, replaced", [(1.5, True), (3.0, False)])
+def test_retry_replaces_a_surprising_fit_only_when_much_better(monkeypatch, gain, replaced):
+    """A fit that did not fail but whose noise scale is unusual is retried; the retry's
+    fit replaces it only when its noise scale is ``retry_gain`` times lower (here 2x)."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    img_a, img_b, _ = _pair(preset)
+    real = DirectEstimator._coarse_to_fine
+    seen = []
+
+    def surprising_first(self, A, B, dt, excluded, wide_level=None):
+        res = real(self, A, B, dt, excluded, wide_level)
+        res["noise_scale"] = 4.0 if wide_level is None else 2.0  # the retry: 2x lower
+        seen.append(wide_level)
+        return res
+
+    cfg = default_config("omni", retry_gain=gain, yaw_jump_sigmas=0.0)
+    est = DirectEstimator(camera, mount, cfg)
+    est._s2_hist = [0.3, 0.3, 0.3]  # the usual level: 4.0 is surprising
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", surprising_first)
+    est.step(img_a, 0.3, SPEED * CAN_SCALE)
+    rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
+    assert seen[0] is None and len(seen) > 1  # the retry ran
+    assert ("manoeuvre" in rec.flags) == replaced
+    assert rec.noise_scale == (2.0 if replaced else 4.0)
 
 
 def test_rgb_and_float_frames_are_accepted() -> None:
@@ -549,14 +595,16 @@ def test_parallax_marks_a_plane_above_the_road() -> None:
         est = DirectEstimator(camera, mount, cfg)
         est.step(f0, 0.3, SPEED * CAN_SCALE)
         est.step(f1, 0.3 + DT, SPEED * CAN_SCALE)
-        m = est._offroad.astype(bool)  # mask level 1: half resolution
-        u0, v0, w, h = (c // 2 for c in box)
+        m = est._offroad.astype(bool)  # at the mask level
+        sc = int(est.levels[est._mask_lvl].scale)
+        u0, v0, w, h = (c // sc for c in box)
         inside = np.zeros_like(m)
         inside[v0 + 2 : v0 + h - 2, u0 + 2 : u0 + w - 2] = True
         roi = np.zeros(m.size, bool)
-        roi[est.levels[1].roi_idx] = True
+        roi[est.levels[est._mask_lvl].roi_idx] = True
         roi = roi.reshape(m.shape)
-        near = cv2.dilate(inside.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+        k = 4 * 2 // sc + 1  # 4 px at level 1
+        near = cv2.dilate(inside.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         return m[inside & roi].mean(), m[roi & ~near].mean()
 
     with_test, road_with = marked(default_config("omni"))
