@@ -127,6 +127,9 @@ class DirectConfig:
     # body, mount), `DirectEstimator._static_points`
     offroad_mask: bool = True  # [-] skip points where the previous pair's compensation left a
     # residual (objects above the road, other vehicles, the ego body), `_offroad_map`
+    own_map: bool = True  # [-] a pair without a map from the previous pair (the first
+    # pair; after a failed or unusual fit) maps its first frame from its own fit and fits
+    # again without those pixels (`_offroad_map` backward)
     mask_level: int = 0  # [-] pyramid level of the off-road mask. Full resolution: a
     # guard-rail post is a few pixels wide, and at level 1 the road pixels around its foot
     # kept their place among the points (merge-omni-near: 17 % of the inliers, 58 % of
@@ -1056,6 +1059,20 @@ class DirectEstimator(EgoMotionEstimator):
         self._offroad = None
         res = self._coarse_to_fine(A, B, dt, excl)
         failure = self._failure(res)
+        if cfg.offroad_mask and cfg.own_map and excl is None and failure is None:
+            # no map from the previous pair (the first pair; after a failed or unusual fit):
+            # map frame A from this pair's own fit, and fit again without those pixels. Its
+            # noise scale may well be unusual: the raised structure the map would remove
+            # is in it (waiting for a usual fit would lock the map out)
+            own = self._offroad_map(B, A, dt, res["noise_scale"], backward=True)
+            excl = self._excluded(own)
+            first = res, self.ekf.x.copy(), self.ekf.P.copy()
+            res = self._coarse_to_fine(A, B, dt, excl)
+            failure = self._failure(res)
+            if failure is not None:  # (the map left too few points): the first fit
+                excl, failure = None, None
+                res, self.ekf.x, self.ekf.P = first
+            flags.append("own-map")
         if excl is not None and failure is not None and failure[0] == "textureless":
             # the off-road map left too few points: a road is not textureless because of
             # a map, which a poor fit of the previous pair can make too wide; fit without it
@@ -1487,6 +1504,12 @@ class DirectEstimator(EgoMotionEstimator):
         thr = cfg.snoop_threshold * (cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * g2)
         return ((b_val - a_val) ** 2 <= thr) & ((b_val - a_moved) ** 2 > 4.0 * thr)
 
+    def _plane_map(self, K: np.ndarray, dt: float, backward: bool) -> np.ndarray:
+        """(3, 3) map of rays from the frame being marked to the other frame of the pair, for
+        the plane K under x̂: H⁻¹ (second frame to first), or H when ``backward``."""
+        H = homography(self.ekf.x, K, dt)
+        return H if backward else np.linalg.inv(H)
+
     def _parallax_marks(
         self,
         A: _Frame,
@@ -1499,6 +1522,7 @@ class DirectEstimator(EgoMotionEstimator):
         r_road: np.ndarray,
         ok: np.ndarray,
         noise: float,
+        backward: bool = False,
     ) -> np.ndarray:
         """(len(tex),) bool: textured pixels of B that a plane above the road explains better.
 
@@ -1540,18 +1564,21 @@ class DirectEstimator(EgoMotionEstimator):
         e_road = blurred(r2_road) / den
         better = np.zeros(len(tex), bool)
         for lam in cfg.parallax_lambdas:
-            P_a = rays @ np.linalg.inv(homography(self.ekf.x, lam * self.K0, dt)).T
+            P_a = rays @ self._plane_map(lam * self.K0, dt, backward).T
             w_a = self.camera.project(P_a) / s
             apart = np.sum(np.square(w_a - w_road), axis=1) > cfg.parallax_min_px**2
             use = _in_level(w_a, P_a, self.K0, level.shape) & apart
             a_l = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
-            r2 = np.where(use, np.square(a_l - self._gain * b_val), r2_road)
+            gain = 1.0 / self._gain if backward else self._gain
+            r2 = np.where(use, np.square(a_l - gain * b_val), r2_road)
             e_l = blurred(r2) / den
             better |= e_l < cfg.parallax_ratio * e_road
         # the road's residual energy above the noise level s² sigma²
         return better & ok & (e_road > noise**2 / cfg.snoop_threshold)
 
-    def _offroad_map(self, A: _Frame, B: _Frame, dt: float, s2: float) -> np.ndarray:
+    def _offroad_map(
+        self, A: _Frame, B: _Frame, dt: float, s2: float, backward: bool = False
+    ) -> np.ndarray:
         """(H_m, W_m) uint8: pixels of frame B that the estimated road motion does not explain.
 
         At the mask level, frame A is warped onto B's ROI pixels with x̂ (H⁻¹, as in
@@ -1568,6 +1595,9 @@ class DirectEstimator(EgoMotionEstimator):
         +/- ``mask_smear`` of the pixel's motion. Structure above the road whose residual
         is within the noise pixel by pixel is caught by the plane-parallax test
         (`_parallax_marks`, ``parallax_lambdas``).
+
+        backward: the pair's frames in reverse (B is then the pair's first frame, A its
+        second): the map of the first frame from the pair's own fit (`_own_map`).
         """
         cfg, lvl = self.cfg, self._mask_lvl
         level = self.levels[lvl]
@@ -1578,7 +1608,8 @@ class DirectEstimator(EgoMotionEstimator):
         g = B.mags[lvl].ravel()[level.roi_idx]
         tex = np.flatnonzero(g > cfg.grad_threshold)
         idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
-        H_inv = np.linalg.inv(homography(self.ekf.x, self.K0, dt))
+        H_inv = self._plane_map(self.K0, dt, backward)
+        gain = 1.0 / self._gain if backward else self._gain
         P_a = level.roi_rays[tex] @ H_inv.T
         w_a = self.camera.project(P_a) / s
         ok = _in_level(w_a, P_a, self.K0, level.shape)
@@ -1588,10 +1619,10 @@ class DirectEstimator(EgoMotionEstimator):
         a_val = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
         b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
         noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
-        r_road = a_val - self._gain * b_val
+        r_road = a_val - gain * b_val
         bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
         if cfg.parallax_lambdas:
-            bad |= self._parallax_marks(A, B, dt, tex, idx, w_a, b_val, r_road, ok, noise)
+            bad |= self._parallax_marks(A, B, dt, tex, idx, w_a, b_val, r_road, ok, noise, backward)
         out = np.zeros(hm * wm, np.uint8)
         out[idx[bad]] = 1
         if cfg.mask_smear > 0 and bad.any():
