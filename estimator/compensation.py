@@ -146,7 +146,7 @@ class FrameCompensator:
         s = lev["scale"]
 
         def proj(P: np.ndarray) -> np.ndarray:
-            Q = P @ Hinv.T
+            Q = P @ np.ascontiguousarray(Hinv.T)  # (contiguous: numpy's fast path)
             w = self.camera.project(Q)
             w = (w + 0.5) / s - 0.5
             bad = ~(np.all(np.isfinite(w), axis=1) & (Q @ self.K0 > 0))

@@ -1564,7 +1564,7 @@ class DirectEstimator(EgoMotionEstimator):
         e_road = blurred(r2_road) / den
         better = np.zeros(len(tex), bool)
         for lam in cfg.parallax_lambdas:
-            P_a = rays @ self._plane_map(lam * self.K0, dt, backward).T
+            P_a = map_rays(rays, self._plane_map(lam * self.K0, dt, backward))
             w_a = self.camera.project(P_a) / s
             apart = np.sum(np.square(w_a - w_road), axis=1) > cfg.parallax_min_px**2
             use = _in_level(w_a, P_a, self.K0, level.shape) & apart
@@ -1610,7 +1610,7 @@ class DirectEstimator(EgoMotionEstimator):
         idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
         H_inv = self._plane_map(self.K0, dt, backward)
         gain = 1.0 / self._gain if backward else self._gain
-        P_a = level.roi_rays[tex] @ H_inv.T
+        P_a = map_rays(level.roi_rays[tex], H_inv)
         w_a = self.camera.project(P_a) / s
         ok = _in_level(w_a, P_a, self.K0, level.shape)
         ui = np.rint(w_a[:, 0]).astype(int).clip(0, wm - 1)
