@@ -28,7 +28,12 @@ For each new frame B (previous frame A)::
     (objects above the road, vehicles, the ego body), and so does a plane-parallax
     test (a plane above the road explains the pixels better: posts, rails, kerbs,
     `_parallax_marks`): the next pair, where B is A, takes no points there
-    (`_offroad_map`)
+    (`_offroad_map`, at full resolution for omni cameras: a post is a few pixels wide)
+    a pair without a map from the previous pair (the first pair; after a failed or
+    unusual fit) maps A from its own fit (the same tests run backward) and fits again
+    without those pixels (flag ``own-map``); a map that leaves a pair no points is
+    dropped for it (flag ``offroad-map-dropped``): a road is not textureless because
+    of a map
 
 Points: pixels of A in the road region of interest (valid camera ray, hitting
 the road below the horizon within ``max_range_m`` of the car, not through the
@@ -1069,10 +1074,11 @@ class DirectEstimator(EgoMotionEstimator):
             first = res, self.ekf.x.copy(), self.ekf.P.copy()
             res = self._coarse_to_fine(A, B, dt, excl)
             failure = self._failure(res)
-            if failure is not None:  # (the map left too few points): the first fit
+            if failure is None:
+                flags.append("own-map")
+            else:  # (the map left too few points): the first fit
                 excl, failure = None, None
                 res, self.ekf.x, self.ekf.P = first
-            flags.append("own-map")
         if excl is not None and failure is not None and failure[0] == "textureless":
             # the off-road map left too few points: a road is not textureless because of
             # a map, which a poor fit of the previous pair can make too wide; fit without it
@@ -1563,13 +1569,13 @@ class DirectEstimator(EgoMotionEstimator):
         den = np.maximum(blurred(np.ones(len(smp), np.float32)), 1e-6)
         e_road = blurred(r2_road) / den
         better = np.zeros(len(tex), bool)
+        gain = 1.0 / self._gain if backward else self._gain
         for lam in cfg.parallax_lambdas:
             P_a = map_rays(rays, self._plane_map(lam * self.K0, dt, backward))
             w_a = self.camera.project(P_a) / s
             apart = np.sum(np.square(w_a - w_road), axis=1) > cfg.parallax_min_px**2
             use = _in_level(w_a, P_a, self.K0, level.shape) & apart
             a_l = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
-            gain = 1.0 / self._gain if backward else self._gain
             r2 = np.where(use, np.square(a_l - gain * b_val), r2_road)
             e_l = blurred(r2) / den
             better |= e_l < cfg.parallax_ratio * e_road
@@ -1597,7 +1603,7 @@ class DirectEstimator(EgoMotionEstimator):
         (`_parallax_marks`, ``parallax_lambdas``).
 
         backward: the pair's frames in reverse (B is then the pair's first frame, A its
-        second): the map of the first frame from the pair's own fit (`_own_map`).
+        second): the map of the first frame from the pair's own fit (``own_map``).
         """
         cfg, lvl = self.cfg, self._mask_lvl
         level = self.levels[lvl]
