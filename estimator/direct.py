@@ -141,6 +141,8 @@ class DirectConfig:
     # the speed information, speed +3.1 %; at level 0: 8 %, 9 %, +0.8 %)
     mask_motion_px: float = 0.5  # [px at the mask level] residual normal motion that marks
     # a pixel as off-road
+    parallax_level: int | None = None  # [-] pyramid level of the plane-parallax test (its
+    # marks upsampled to the mask level); None: the mask level
     parallax_lambdas: tuple[float, ...] = (1.15, 1.3, 1.6)  # [-] plane-parallax hypotheses of the
     # off-road mask: a static point at height z above the road moves like the plane
     # K = lambda K0, lambda = h / (h - z) (0.25, 0.45, 0.73 m for h = 1.95 m); () off
@@ -1521,6 +1523,7 @@ class DirectEstimator(EgoMotionEstimator):
         A: _Frame,
         B: _Frame,
         dt: float,
+        lvl: int,
         tex: np.ndarray,
         idx: np.ndarray,
         w_road: np.ndarray,
@@ -1532,7 +1535,7 @@ class DirectEstimator(EgoMotionEstimator):
     ) -> np.ndarray:
         """(len(tex),) bool: textured pixels of B that a plane above the road explains better.
 
-        From `_offroad_map`, per textured ROI pixel of B at the mask level: w_road (N, 2)
+        From `_offroad_map`, per textured ROI pixel of B at level lvl: w_road (N, 2)
         where the road hypothesis finds it in A [level px], b_val (N,) its brightness in
         B, r_road (N,) the road's residual, ok (N,) usable.
 
@@ -1551,7 +1554,7 @@ class DirectEstimator(EgoMotionEstimator):
         pixel less than ``parallax_min_px`` farther than the road does (low speed, near
         the focus of expansion: the two cannot be told apart) keeps the road's residual.
         """
-        cfg, lvl = self.cfg, self._mask_lvl
+        cfg = self.cfg
         level = self.levels[lvl]
         s = float(level.scale)
         hm, wm = level.shape
@@ -1606,17 +1609,43 @@ class DirectEstimator(EgoMotionEstimator):
         second): the map of the first frame from the pair's own fit (``own_map``).
         """
         cfg, lvl = self.cfg, self._mask_lvl
-        level = self.levels[lvl]
+        hm, wm = self.levels[lvl].shape
+        tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, dt, lvl, backward)
+        noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
+        bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
+        out = self._smeared_marks(idx[bad], w_a[bad], (hm, wm))
+        if cfg.parallax_lambdas:
+            plvl = lvl if cfg.parallax_level is None else min(cfg.parallax_level, cfg.levels - 1)
+            if plvl != lvl:  # the windowed test at a coarser level (cheaper), marks upsampled
+                tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, dt, plvl, backward)
+            par = self._parallax_marks(
+                A, B, dt, plvl, tex, idx, w_a, b_val, r_road, ok, noise, backward
+            )
+            marks = self._smeared_marks(idx[par], w_a[par], self.levels[plvl].shape)
+            if plvl != lvl:
+                marks = cv2.resize(marks, (wm, hm), interpolation=cv2.INTER_NEAREST)
+            out |= marks
+        return out
+
+    def _road_residuals(
+        self, A: _Frame, B: _Frame, dt: float, lvl: int, backward: bool
+    ) -> tuple[np.ndarray, ...]:
+        """Frame A warped onto B's textured ROI pixels at level lvl with x̂'s road motion.
+
+        Returns tex (N,) indices into the level's ROI candidates, idx (N,) their pixel
+        indices, g (N,) B's gradient magnitude there, w_a (N, 2) where the road puts them in
+        A [level px], ok (N,) usable, b_val (N,) B's brightness, r_road (N,) A - gain B.
+        Only textured pixels of B can be points of the next pair (and a residual there says
+        what B shows there is not the road); flat ones are left to the dilation.
+        """
+        cfg, level = self.cfg, self.levels[lvl]
         s = float(level.scale)
         hm, wm = level.shape
-        # only textured pixels of B can be points of the next pair (and a residual there
-        # says what B shows there is not the road); flat ones are left to the dilation
         g = B.mags[lvl].ravel()[level.roi_idx]
         tex = np.flatnonzero(g > cfg.grad_threshold)
         idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
-        H_inv = self._plane_map(self.K0, dt, backward)
         gain = 1.0 / self._gain if backward else self._gain
-        P_a = map_rays(level.roi_rays[tex], H_inv)
+        P_a = map_rays(level.roi_rays[tex], self._plane_map(self.K0, dt, backward))
         w_a = self.camera.project(P_a) / s
         ok = _in_level(w_a, P_a, self.K0, level.shape)
         ui = np.rint(w_a[:, 0]).astype(int).clip(0, wm - 1)
@@ -1624,18 +1653,21 @@ class DirectEstimator(EgoMotionEstimator):
         ok &= level.valid_b[vi, ui] > 0
         a_val = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
         b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
-        noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
-        r_road = a_val - gain * b_val
-        bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
-        if cfg.parallax_lambdas:
-            bad |= self._parallax_marks(A, B, dt, tex, idx, w_a, b_val, r_road, ok, noise, backward)
+        return tex, idx, g, w_a, ok, b_val, a_val - gain * b_val
+
+    def _smeared_marks(
+        self, idx: np.ndarray, w_a: np.ndarray, shape: tuple[int, int]
+    ) -> np.ndarray:
+        """(H, W) uint8 map of the pixels idx (M,) of a level of that shape, each also
+        marked along +/- ``mask_smear`` of its image motion (from w_a (M, 2) in the other
+        frame): motion blur smears a structure along its image motion."""
+        hm, wm = shape
         out = np.zeros(hm * wm, np.uint8)
-        out[idx[bad]] = 1
-        if cfg.mask_smear > 0 and bad.any():
-            # motion blur smears a structure along its image motion: mark along the flow
-            wb = np.stack([idx[bad] % wm, idx[bad] // wm], 1).astype(float)
-            f = wb - w_a[bad]
-            for t in np.linspace(-cfg.mask_smear, cfg.mask_smear, 5):
+        out[idx] = 1
+        if self.cfg.mask_smear > 0 and len(idx):
+            wb = np.stack([idx % wm, idx // wm], 1).astype(float)
+            f = wb - w_a
+            for t in np.linspace(-self.cfg.mask_smear, self.cfg.mask_smear, 5):
                 q = np.rint(wb + t * f).astype(int)
                 inb = (q[:, 0] >= 0) & (q[:, 0] < wm) & (q[:, 1] >= 0) & (q[:, 1] < hm)
                 out[q[inb, 1] * wm + q[inb, 0]] = 1

@@ -606,7 +606,8 @@ def _raised_pair(preset: str, t0: float, box: tuple[int, int, int, int], height_
     return out
 
 
-def test_parallax_marks_a_plane_above_the_road() -> None:
+@pytest.mark.parametrize("parallax_level", [None, 1])
+def test_parallax_marks_a_plane_above_the_road(parallax_level) -> None:
     """A textured plane 0.5 m above the road (lambda = h / (h - z) = 1.34) beside the car is
     marked off-road by the plane-parallax test, the road is not; without the test (only the
     per-pixel residual) less of it is."""
@@ -631,7 +632,7 @@ def test_parallax_marks_a_plane_above_the_road() -> None:
         near = cv2.dilate(inside.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         return m[inside & roi].mean(), m[roi & ~near].mean()
 
-    with_test, road_with = marked(default_config("omni"))
+    with_test, road_with = marked(default_config("omni", parallax_level=parallax_level))
     without, road_without = marked(default_config("omni", parallax_lambdas=()))
     print(
         f"marked: raised plane {with_test:.2f} (residual only {without:.2f}), "
