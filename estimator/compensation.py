@@ -30,6 +30,7 @@ import numpy as np
 
 from estimator.camera import CameraModel
 from estimator.homography import homography
+from estimator.motion_model import map_rays
 from estimator.mount import CameraMount
 
 
@@ -146,7 +147,7 @@ class FrameCompensator:
         s = lev["scale"]
 
         def proj(P: np.ndarray) -> np.ndarray:
-            Q = P @ np.ascontiguousarray(Hinv.T)  # (contiguous: numpy's fast path)
+            Q = map_rays(P, Hinv)
             w = self.camera.project(Q)
             w = (w + 0.5) / s - 0.5
             bad = ~(np.all(np.isfinite(w), axis=1) & (Q @ self.K0 > 0))

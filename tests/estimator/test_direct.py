@@ -628,7 +628,7 @@ def test_parallax_marks_a_plane_above_the_road(parallax_level) -> None:
         roi = np.zeros(m.size, bool)
         roi[est.levels[est._mask_lvl].roi_idx] = True
         roi = roi.reshape(m.shape)
-        k = 4 * 2 // sc + 1  # 4 px at level 1
+        k = 2 * (8 // sc) + 1  # 8 full-resolution px around the plane
         near = cv2.dilate(inside.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         return m[inside & roi].mean(), m[roi & ~near].mean()
 
