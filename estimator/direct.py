@@ -482,7 +482,8 @@ class _Level:
     sel_J: (M, 2, 9) float32 dw/dx of each candidate at the nominal state (V = 1 m/s
     forward, W = A = 0) per unit dt (V, W columns) and per metre of travel (A columns),
     for ranking candidates (`select_points`); to_mask: (M,) flat index of each candidate
-    in the off-road mask grid (set by `DirectEstimator`).
+    in the off-road mask grid (set by `DirectEstimator`); box: (row0, row1, col0, col1)
+    the ROI's bounding box (end exclusive).
     """
 
     scale: int
@@ -493,6 +494,14 @@ class _Level:
     valid_b: np.ndarray
     sel_J: np.ndarray
     to_mask: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        rows, cols = np.divmod(self.roi_idx, self.shape[1])
+        self.box = (
+            (0, 0, 0, 0)
+            if len(rows) == 0
+            else (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
+        )
 
 
 def _level_shapes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
@@ -1560,14 +1569,28 @@ class DirectEstimator(EgoMotionEstimator):
         hm, wm = level.shape
         lmax = B.local_max[lvl]
         smp = np.flatnonzero(ok & lmax.ravel()[idx] if lmax is not None else ok)
-        sidx, rays = idx[smp], level.roi_rays[tex[smp]]
+        rays = level.roi_rays[tex[smp]]
         r2_road, w_road, b_val = np.square(r_road[smp]), w_road[smp], b_val[smp]
 
+        # the blurs run on the ROI's bounding box and a kernel's reach around it (beyond
+        # it the images are zero): the same sums as on the whole level, ~0.7 of the work
+        reach = math.ceil(4 * cfg.parallax_window_px) + 1
+        r0, r1, c0, c1 = level.box
+        r0, r1, c0, c1 = (
+            max(r0 - reach, 0),
+            min(r1 + reach, hm),
+            max(c0 - reach, 0),
+            min(c1 + reach, wm),
+        )
+        bw = c1 - c0
+        vi, ui = np.divmod(idx, wm)
+        at, sat = (vi - r0) * bw + (ui - c0), (vi[smp] - r0) * bw + (ui[smp] - c0)
+
         def blurred(values: np.ndarray) -> np.ndarray:
-            img = np.zeros(hm * wm, np.float32)
-            img[sidx] = values
-            img = cv2.GaussianBlur(img.reshape(hm, wm), (0, 0), cfg.parallax_window_px)
-            return img.ravel()[idx]
+            img = np.zeros((r1 - r0) * bw, np.float32)
+            img[sat] = values
+            img = cv2.GaussianBlur(img.reshape(r1 - r0, bw), (0, 0), cfg.parallax_window_px)
+            return img.ravel()[at]
 
         den = np.maximum(blurred(np.ones(len(smp), np.float32)), 1e-6)
         e_road = blurred(r2_road) / den
@@ -1665,10 +1688,10 @@ class DirectEstimator(EgoMotionEstimator):
         out = np.zeros(hm * wm, np.uint8)
         out[idx] = 1
         if self.cfg.mask_smear > 0 and len(idx):
-            wb = np.stack([idx % wm, idx // wm], 1).astype(float)
-            f = wb - w_a
-            for t in np.linspace(-self.cfg.mask_smear, self.cfg.mask_smear, 5):
-                q = np.rint(wb + t * f).astype(int)
-                inb = (q[:, 0] >= 0) & (q[:, 0] < wm) & (q[:, 1] >= 0) & (q[:, 1] < hm)
-                out[q[inb, 1] * wm + q[inb, 0]] = 1
+            vb, ub = np.divmod(idx, wm)
+            t = np.linspace(-self.cfg.mask_smear, self.cfg.mask_smear, 5)[[0, 1, 3, 4], None]
+            u = np.rint(ub + t * (ub - w_a[:, 0])).astype(np.intp)  # (4, M): t = 0 is idx
+            v = np.rint(vb + t * (vb - w_a[:, 1])).astype(np.intp)
+            inb = (u >= 0) & (u < wm) & (v >= 0) & (v < hm)
+            out[v[inb] * wm + u[inb]] = 1
         return out.reshape(hm, wm)

@@ -15,6 +15,7 @@ from estimator.camera import (
     PinholeCamera,
     check_pixels,
     check_points,
+    row_norm,
 )
 from estimator.camera_io import load_camera
 
@@ -463,3 +464,11 @@ def test_check_helpers_return_float64_copies():
     out = check_points(src)
     assert out.dtype == np.float64 and out is not src
     assert check_pixels([[1, 2]]).dtype == np.float64
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(1e-6, 1e6))
+def test_row_norm_equals_numpy_norm_exactly(seed: int, scale: float) -> None:
+    # the projections rely on it giving the very same values (results reproducible)
+    P = np.random.default_rng(seed).normal(size=(257, 3)) * scale
+    np.testing.assert_array_equal(row_norm(P), np.linalg.norm(P, axis=1))
