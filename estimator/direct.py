@@ -108,6 +108,9 @@ from estimator.mount import CameraMount
 
 UNUSED, INLIER, OUTLIER = 0, 1, 2  # point labels (paper Fig. 4b: black, gray, white)
 
+# Rows of (N, k) arrays are gathered with np.take(a, i, 0) rather than a[i]: the same
+# values, 3-6x faster in numpy 2 (59k rays: 0.08 vs 0.47 ms).
+
 # [m] the ego car's body below the beltline (length, width, height), centred on the car
 # origin: a mid-size car, 5.0 x 1.94 m, beltline 0.80 m with the hood rising to 0.88 m
 # (the car the simulator draws; a 1.0 m box hid half the road from a camera on the
@@ -482,8 +485,9 @@ class _Level:
     sel_J: (M, 2, 9) float32 dw/dx of each candidate at the nominal state (V = 1 m/s
     forward, W = A = 0) per unit dt (V, W columns) and per metre of travel (A columns),
     for ranking candidates (`select_points`); to_mask: (M,) flat index of each candidate
-    in the off-road mask grid (set by `DirectEstimator`); box: (row0, row1, col0, col1)
-    the ROI's bounding box (end exclusive).
+    in the off-road mask grid (set by `DirectEstimator`); roi_rays32: roi_rays in float32
+    (the dense off-road map); box: (row0, row1, col0, col1) the ROI's bounding box (end
+    exclusive).
     """
 
     scale: int
@@ -494,8 +498,11 @@ class _Level:
     valid_b: np.ndarray
     sel_J: np.ndarray
     to_mask: np.ndarray | None = None
+    roi_rays32: np.ndarray = field(init=False)
+    box: tuple[int, int, int, int] = field(init=False)
 
     def __post_init__(self) -> None:
+        self.roi_rays32 = self.roi_rays.astype(np.float32)
         rows, cols = np.divmod(self.roi_idx, self.shape[1])
         self.box = (
             (0, 0, 0, 0)
@@ -671,13 +678,13 @@ def select_points(
         keep &= ~exclude
     sel = np.flatnonzero(keep)
     if x is not None and col_scale is not None and cfg.max_flow_px > 0:
-        sel = sel[~too_fast(level.sel_J[sel], x, col_scale, cfg.max_flow_px)]
+        sel = sel[~too_fast(np.take(level.sel_J, sel, 0), x, col_scale, cfg.max_flow_px)]
     if len(sel) > cfg.max_points:
         if cfg.selection == "information" and P is not None and col_scale is not None:
             idx = level.roi_idx[sel]
             gu = frame.stacks[lvl][1].ravel()[idx].astype(np.float64)
             gv = frame.stacks[lvl][2].ravel()[idx].astype(np.float64)
-            J = level.sel_J[sel]
+            J = np.take(level.sel_J, sel, 0)
             s = 1.0 / level.scale  # level gradients -> per full-resolution pixel
             c = (gu[:, None] * J[:, 0] + gv[:, None] * J[:, 1]) * (col_scale * s)
             R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * mag[sel].astype(np.float64) ** 2
@@ -687,7 +694,9 @@ def select_points(
             score = np.sum(u2 / np.maximum(u2.sum(axis=0), 1e-300), axis=1)
         else:
             score = mag[sel]
-        sel = np.sort(sel[_spread_top(level.roi_w[sel], score, cfg.max_points, cfg.select_cells)])
+        sel = np.sort(
+            sel[_spread_top(np.take(level.roi_w, sel, 0), score, cfg.max_points, cfg.select_cells)]
+        )
     return sel
 
 
@@ -1016,7 +1025,7 @@ class DirectEstimator(EgoMotionEstimator):
         vi = np.rint(w_b[:, 1]).astype(int).clip(0, hl - 1)
         idx = np.flatnonzero(inside & (level.valid_b[vi, ui] > 0))
         # step 2: brightness and spatial gradient of B at w_b, temporal gradient
-        smp = sample_points(B.stacks[lvl], w_b[idx])
+        smp = sample_points(B.stacks[lvl], np.take(w_b, idx, 0))
         b_val, g = smp[:, 0].astype(np.float64), smp[:, 1:3].astype(np.float64)
         a_i = a_val[idx]
         gain = 1.0
@@ -1029,7 +1038,9 @@ class DirectEstimator(EgoMotionEstimator):
         g *= gain
         R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * np.sum(g * g, axis=1)
         # step 3, eq. 14-16: C_i = g_i^T dw_b/dx (gradient per full-resolution pixel)
-        C = constraint_rows(cam, rays[idx], P_b[idx], g / s, dh_dx(x, self.K0, dt))
+        C = constraint_rows(
+            cam, np.take(rays, idx, 0), np.take(P_b, idx, 0), g / s, dh_dx(x, self.K0, dt)
+        )
         if off is not None and cfg.offroad_depth_sigma > 0:
             lam_var = np.square(cfg.offroad_depth_sigma * (C[:, V_SLICE] @ x[V_SLICE]))
             R = R + np.where(off[idx], lam_var, 0.0)
@@ -1394,7 +1405,7 @@ class DirectEstimator(EgoMotionEstimator):
         sel = sel[~self._static_points(level, lvl, sel, A, B, dt)]
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
         off = self._offroad_given[lvl][sel] if self._offroad_given is not None else None
-        return level, sel, level.roi_rays[sel], a_val, off
+        return level, sel, np.take(level.roi_rays, sel, 0), a_val, off
 
     def _excluded(self, offroad: np.ndarray | None) -> list[np.ndarray] | None:
         """Per level, (M,) bool: candidates within their support (``mask_support_px``) of a
@@ -1456,7 +1467,7 @@ class DirectEstimator(EgoMotionEstimator):
         x0 = ekf.x.copy()
         if len(rays) > n_points:  # an evenly spread subset is enough to rank the grid
             sub = np.linspace(0, len(rays) - 1, n_points).astype(int)
-            rays, a_val = rays[sub], a_val[sub]
+            rays, a_val = np.take(rays, sub, 0), a_val[sub]
         dirs = np.zeros((2, N_STATE))
         dirs[0, V_SLICE] = x0[V_SLICE]  # d x / d (relative speed scale)
         # d x / d (car yaw rate) [rad/s]; kinematic model: the viewpoint slides with it
@@ -1484,8 +1495,9 @@ class DirectEstimator(EgoMotionEstimator):
         ga, gb = np.meshgrid(steps[0], steps[1], indexing="ij")
         X = x0 + ga.reshape(-1, 1) * dirs[0] + gb.reshape(-1, 1) * dirs[1]
         Hs = np.stack([homography(x, self.K0, dt) for x in X])  # (G, 3, 3)
-        P_b = np.einsum("gij,nj->gni", Hs, rays).reshape(-1, 3)
-        w_b = cam.project(P_b) / s
+        # float32 (`CameraModel.project`): the grid is only ranked, ~1e-4 px is plenty
+        P_b = (rays.astype(np.float32) @ Hs.transpose(0, 2, 1).astype(np.float32)).reshape(-1, 3)
+        w_b = cam.project(P_b, np.float32) / np.float32(s)
         ok = _in_level(w_b, P_b, self.K0, level.shape)
         b_val = sample_points(B.stacks[lvl][:1], w_b)[:, 0].astype(np.float64)
         r2 = (np.tile(a_val, len(X)) - self._gain * b_val) ** 2 / cfg.sigma_intensity**2
@@ -1513,19 +1525,25 @@ class DirectEstimator(EgoMotionEstimator):
         s = float(level.scale)
         a_val = A.stacks[lvl][0].ravel()[idx].astype(np.float64)
         b_val = self._gain * B.stacks[lvl][0].ravel()[idx].astype(np.float64)
-        P_b = map_rays(level.roi_rays[sel], homography(self.ekf.x, self.K0, dt))
-        w_a = level.roi_w[sel] / s
+        P_b = map_rays(np.take(level.roi_rays, sel, 0), homography(self.ekf.x, self.K0, dt))
+        w_a = np.take(level.roi_w, sel, 0) / s
         dw = np.nan_to_num(self.camera.project(P_b) / s - w_a)
         a_moved = sample_points(A.stacks[lvl][:1], w_a - dw)[:, 0].astype(np.float64)
         g2 = A.mags[lvl].ravel()[idx].astype(np.float64) ** 2
         thr = cfg.snoop_threshold * (cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * g2)
         return ((b_val - a_val) ** 2 <= thr) & ((b_val - a_moved) ** 2 > 4.0 * thr)
 
-    def _plane_map(self, K: np.ndarray, dt: float, backward: bool) -> np.ndarray:
-        """(3, 3) map of rays from the frame being marked to the other frame of the pair, for
-        the plane K under x̂: H⁻¹ (second frame to first), or H when ``backward``."""
+    def _plane_pixels(
+        self, rays32: np.ndarray, K: np.ndarray, dt: float, backward: bool, s: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Where the plane K under x̂ puts rays32 (N, 3) float32 of the frame being marked in
+        the other frame of the pair (H⁻¹: second frame to first; H when ``backward``): P
+        (N, 3) and its level pixels (N, 2), in float32 (the dense off-road map: ~5x faster
+        projections, ~1e-4 px)."""
         H = homography(self.ekf.x, K, dt)
-        return H if backward else np.linalg.inv(H)
+        M = H if backward else np.linalg.inv(H)
+        P = rays32 @ np.ascontiguousarray(M.T, dtype=np.float32)
+        return P, self.camera.project(P, np.float32) / np.float32(s)
 
     def _parallax_marks(
         self,
@@ -1569,8 +1587,8 @@ class DirectEstimator(EgoMotionEstimator):
         hm, wm = level.shape
         lmax = B.local_max[lvl]
         smp = np.flatnonzero(ok & lmax.ravel()[idx] if lmax is not None else ok)
-        rays = level.roi_rays[tex[smp]]
-        r2_road, w_road, b_val = np.square(r_road[smp]), w_road[smp], b_val[smp]
+        rays = np.take(level.roi_rays32, tex[smp], 0)
+        r2_road, w_road, b_val = np.square(r_road[smp]), np.take(w_road, smp, 0), b_val[smp]
 
         # the blurs run on the ROI's bounding box and a kernel's reach around it (beyond
         # it the images are zero): the same sums as on the whole level, ~0.7 of the work
@@ -1592,21 +1610,21 @@ class DirectEstimator(EgoMotionEstimator):
             img = cv2.GaussianBlur(img.reshape(r1 - r0, bw), (0, 0), cfg.parallax_window_px)
             return img.ravel()[at]
 
-        den = np.maximum(blurred(np.ones(len(smp), np.float32)), 1e-6)
-        e_road = blurred(r2_road) / den
+        # The windowed energies are blur(r²) / blur(1) over the samples; the blur is linear,
+        # so "e_l < ratio e_road" is "blur(r²_l - ratio r²_road) < 0", and the road's energy
+        # above the noise level s² sigma² is "blur(r²_road - noise² / thr) > 0": one blur
+        # per hypothesis and one for the noise, none for the normalisation.
+        loud = blurred(r2_road - noise**2 / cfg.snoop_threshold) > 0
         better = np.zeros(len(tex), bool)
         gain = 1.0 / self._gain if backward else self._gain
         for lam in cfg.parallax_lambdas:
-            P_a = map_rays(rays, self._plane_map(lam * self.K0, dt, backward))
-            w_a = self.camera.project(P_a) / s
+            P_a, w_a = self._plane_pixels(rays, lam * self.K0, dt, backward, s)
             apart = np.sum(np.square(w_a - w_road), axis=1) > cfg.parallax_min_px**2
             use = _in_level(w_a, P_a, self.K0, level.shape) & apart
             a_l = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
             r2 = np.where(use, np.square(a_l - gain * b_val), r2_road)
-            e_l = blurred(r2) / den
-            better |= e_l < cfg.parallax_ratio * e_road
-        # the road's residual energy above the noise level s² sigma²
-        return better & ok & (e_road > noise**2 / cfg.snoop_threshold)
+            better |= blurred(r2 - cfg.parallax_ratio * r2_road) < 0
+        return better & ok & loud
 
     def _offroad_map(
         self, A: _Frame, B: _Frame, dt: float, s2: float, backward: bool = False
@@ -1668,8 +1686,7 @@ class DirectEstimator(EgoMotionEstimator):
         tex = np.flatnonzero(g > cfg.grad_threshold)
         idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
         gain = 1.0 / self._gain if backward else self._gain
-        P_a = map_rays(level.roi_rays[tex], self._plane_map(self.K0, dt, backward))
-        w_a = self.camera.project(P_a) / s
+        P_a, w_a = self._plane_pixels(np.take(level.roi_rays32, tex, 0), self.K0, dt, backward, s)
         ok = _in_level(w_a, P_a, self.K0, level.shape)
         ui = np.rint(w_a[:, 0]).astype(int).clip(0, wm - 1)
         vi = np.rint(w_a[:, 1]).astype(int).clip(0, hm - 1)
