@@ -472,3 +472,15 @@ def test_row_norm_equals_numpy_norm_exactly(seed: int, scale: float) -> None:
     # the projections rely on it giving the very same values (results reproducible)
     P = np.random.default_rng(seed).normal(size=(257, 3)) * scale
     np.testing.assert_array_equal(row_norm(P), np.linalg.norm(P, axis=1))
+
+
+def test_float32_projection_agrees_to_a_thousandth_of_a_pixel(preset):
+    cam, _ = preset
+    rays = cam.pixel_rays()[cam.valid_mask()][::7]  # float32 unit rays of valid pixels
+    w64 = cam.project(rays.astype(np.float64))
+    w32 = cam.project(rays, np.float32)
+    assert w32.dtype == np.float32 and cam.project(rays).dtype == np.float64
+    assert np.nanmax(np.abs(w32 - w64)) < 1e-3
+    np.testing.assert_array_equal(np.isnan(w32), np.isnan(w64))
+    with pytest.raises(ValueError, match="float64 or float32"):
+        cam.project(rays, np.float16)
