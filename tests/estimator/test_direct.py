@@ -460,6 +460,28 @@ def test_offroad_map_that_leaves_no_points_is_dropped() -> None:
     assert _errors(rec, x12)[0] < 1.0
 
 
+@pytest.mark.parametrize("coarse_without_map", [True, False])
+def test_coarse_levels_fit_without_a_map_that_covers_them(coarse_without_map: bool) -> None:
+    """A map of scattered marks, dilated by a coarse level's support (8 px at level 2),
+    covers the whole road there: with ``coarse_without_map`` the coarse levels select their
+    points without it (and widen the fit's basin); the finest level keeps the map."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    f0, f1, _ = _pair(preset, 0, 0.3)
+    _, f2, x12 = _pair(preset, 0, 0.3 + DT)
+    cfg = default_config(camera.kind, coarse_without_map=coarse_without_map)
+    est = DirectEstimator(camera, mount, cfg)
+    est.step(f0, 0.3, SPEED * CAN_SCALE)
+    est.step(f1, 0.3 + DT, SPEED * CAN_SCALE)
+    est._offroad[:] = 0
+    est._offroad[::6, ::6] = 1  # 5x5 support at level 0 leaves 11/36 of the pixels
+    rec = est.step(f2, 0.3 + 2 * DT, SPEED * CAN_SCALE)
+    level2 = rec.iterations[cfg.levels - 1 - 2]  # iterations run coarse -> fine
+    assert (level2 > 0) == coarse_without_map
+    assert rec.iterations[-1] > 0 and "offroad-map-dropped" not in rec.flags
+    assert _errors(rec, x12)[0] < 1.0
+
+
 @pytest.mark.parametrize("gain, replaced", [(1.5, True), (3.0, False)])
 def test_retry_replaces_a_surprising_fit_only_when_much_better(monkeypatch, gain, replaced):
     """A fit that did not fail but whose noise scale is unusual is retried; the retry's
