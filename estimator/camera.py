@@ -34,6 +34,8 @@ _SINGULAR_TOL = 1e-9
 def check_points(P: Any, where: str = "project", dtype: type = np.float64) -> np.ndarray:
     """(N, 3) view of ``P`` as dtype (float64, or float32 where a caller asks for it; a
     copy only when converted; never written to); the error names the shape received."""
+    if type(P) is np.ndarray and P.dtype == dtype and P.ndim == 2 and P.shape[1] == 3:
+        return P  # the estimator's hot path: nothing to check or convert
     arr = np.asarray(P)
     if arr.dtype == object or not (
         np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.bool_)
