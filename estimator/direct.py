@@ -162,6 +162,7 @@ class DirectConfig:
     parallax_ratio: float = 0.7  # [-] a pixel is off-road when some lambda leaves less than
     # this fraction of the road's windowed residual energy
     parallax_window_px: float = 1.5  # [px at the mask level] Gaussian window of the energies
+    # (sigma; truncated at 3 sigma)
     parallax_min_px: float = 0.5  # [px at the mask level] a hypothesis is only tested where it
     # moves the pixel this much farther than the road does
     mask_smear: float = 0.2  # [-] marked pixels are also smeared along +/- this fraction of
@@ -1615,10 +1616,10 @@ class DirectEstimator(EgoMotionEstimator):
         rays = np.take(level.roi_rays32, tex[smp], 0)
         r2_road, w_road, b_val = np.square(r_road[smp]), np.take(w_road, smp, 0), b_val[smp]
 
-        # the blurs run on the ROI's bounding box and a kernel's reach around it (beyond
-        # it the images are zero): the same sums as on the whole level, ~0.7 of the work
-        # the Gaussian window truncated at 3 sigma (as OpenCV does for 8-bit images; 4 for
-        # float ones): 0.3 % of its weight, 2/3 of the taps
+        # The Gaussian window is truncated at 3 sigma (as OpenCV does for 8-bit images; 4
+        # for float ones): 0.3 % of its weight, 2/3 of the taps. The blurs run on the ROI's
+        # bounding box and a kernel's reach around it (beyond it the images are zero): the
+        # same sums as on the whole level, ~0.7 of the work.
         half = math.ceil(3 * cfg.parallax_window_px)
         reach = half + 1
         r0, r1, c0, c1 = level.box
