@@ -31,9 +31,10 @@ For each new frame B (previous frame A)::
     (`_offroad_map`, at full resolution for omni cameras: a post is a few pixels wide)
     a pair without a map from the previous pair (the first pair; after a failed or
     unusual fit) maps A from its own fit (the same tests run backward) and fits again
-    without those pixels (flag ``own-map``); a map that leaves a pair no points is
-    dropped for it (flag ``offroad-map-dropped``): a road is not textureless because
-    of a map
+    without those pixels (flag ``own-map``; kept only if it fits at least as well); a
+    map that leaves the finest level too few points is dropped for the pair (flag
+    ``offroad-map-dropped``): a road is not textureless because of a map; a coarse
+    level it leaves too few selects without it (``coarse_without_map``)
 
 Points: pixels of A in the road region of interest (valid camera ray, hitting
 the road below the horizon within ``max_range_m`` of the car, not through the
@@ -1568,7 +1569,7 @@ class DirectEstimator(EgoMotionEstimator):
         projections, ~1e-4 px)."""
         H = homography(self.ekf.x, K, dt)
         M = H if backward else np.linalg.inv(H)
-        P = rays32 @ np.ascontiguousarray(M.T, dtype=np.float32)
+        P = map_rays(rays32, M, np.float32)
         return P, self.camera.project(P, np.float32) / np.float32(s)
 
     def _parallax_marks(
