@@ -402,6 +402,34 @@ def test_grid_search_recovers_a_far_off_speed_prior() -> None:
     assert _errors(rec, x_true)[0] < 1.0
 
 
+def test_grid_search_fits_each_grid_points_brightness_gain(monkeypatch) -> None:
+    """The grid search ranks each grid point with its own brightness gain B -> A, as the
+    iterations do: a gain left over from the previous pair (1.0 on the first pair) must
+    not pick the grid point. With the coarsest level skipped (iterations 0), level 2
+    searches before any linearisation has fitted this pair's gain. Measured before the
+    fix: the grid point moved from -11 % to +66 % / +5 % with a stale gain of 0.9 / 1.1
+    (rendered rectilinear intersection, first pair: a 1.3 % exposure step read as -43 %
+    speed)."""
+    img_a, img_b, _ = _pair("omni-near")
+    camera, mount, _ = _camera("omni-near")
+    found = {}
+    for stale in (0.9, 1.0, 1.1):
+        est = DirectEstimator(camera, mount, default_config("omni", iterations=(0, 4, 3, 2)))
+        est.step(img_a, 0.3, 1.2 * SPEED)
+        est._gain = stale
+        first: list[np.ndarray] = []
+        search = est._search
+
+        def spy(*args, search=search, first=first, est=est, **kwargs):
+            search(*args, **kwargs)
+            first.append(est.ekf.x.copy())
+
+        monkeypatch.setattr(est, "_search", spy)
+        est.step(img_b, 0.3 + DT, 1.2 * SPEED)
+        found[stale] = first[0]
+    assert np.array_equal(found[0.9], found[1.0]) and np.array_equal(found[1.1], found[1.0])
+
+
 def test_static_structure_is_not_used() -> None:
     """A textured patch at the same pixels in both frames (ego body, lens dirt) is dropped."""
     preset = "omni-near"
