@@ -1134,14 +1134,21 @@ class DirectEstimator(EgoMotionEstimator):
         raised, self._raised = self._raised, None
         res = self._coarse_to_fine(A, B, dt, excl)
         failure = self._failure(res)
-        if cfg.offroad_mask and cfg.own_map and excl is None and failure is None:
+        if (
+            cfg.offroad_mask
+            and cfg.own_map
+            and excl is None
+            and (failure is None or failure[0] == "poor-fit")
+        ):
             # no map from the previous pair (the first pair; after a failed or unusual fit):
             # map frame A from this pair's own fit, and fit again without those pixels. Its
             # noise scale may well be unusual: the raised structure the map would remove
-            # is in it (waiting for a usual fit would lock the map out)
+            # is in it (waiting for a usual fit would lock the map out). A poor fit too: a
+            # vehicle close behind fills the road with motion the road's model cannot fit
+            # (rectilinear merge, frames 90-108)
             own = self._offroad_map(B, A, dt, res["noise_scale"], backward=True)
             excl = self._excluded(own)
-            first = res, self.ekf.x.copy(), self.ekf.P.copy()
+            first = res, self.ekf.x.copy(), self.ekf.P.copy(), failure
             res = self._coarse_to_fine(A, B, dt, excl)
             failure = self._failure(res)
             # the map takes out what did not fit: the refit must fit at least as well. A
@@ -1150,9 +1157,9 @@ class DirectEstimator(EgoMotionEstimator):
             # the refit on the rest went to +32 % at a higher noise scale)
             if failure is None and res["noise_scale"] <= first[0]["noise_scale"]:
                 flags.append("own-map")
-            else:  # (the map left too few points, or a worse fit): the first fit
-                excl, failure = None, None
-                res, self.ekf.x, self.ekf.P = first
+            else:  # (the map left too few points, or a worse fit): the first fit, as it was
+                excl = None
+                res, self.ekf.x, self.ekf.P, failure = first
         if excl is not None and failure is not None and res["n_points"] < cfg.min_points:
             # the off-road map left too few points at the finest level (the coarse ones
             # may have fitted without it, `coarse_without_map`): a road is not textureless

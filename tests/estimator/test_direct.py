@@ -763,6 +763,36 @@ def test_own_map_refit_is_kept_only_if_it_fits_at_least_as_well(monkeypatch, ref
     assert rec.noise_scale == fits[1 if kept else 0][1]
 
 
+@pytest.mark.parametrize("refit_poor", [False, True])
+def test_poor_first_fit_gets_its_own_map_and_keeps_its_failure_if_refit_fails(
+    monkeypatch, refit_poor
+):
+    """A first fit that fails as a poor fit (a vehicle close behind fills the road with
+    motion the road's model cannot fit) is refitted without its own off-road map; a refit
+    that fits is returned undegraded, one that fails too leaves the first fit's failure:
+    the prior kept and flagged, never the poor fit returned as a measurement."""
+    preset = "omni-near"
+    img_a, img_b, _ = _pair(preset)
+    real = DirectEstimator._coarse_to_fine
+    fits = []  # (with a map, noise scale) of each pass
+    cfg = default_config("omni", manoeuvre_retry=False, yaw_jump_sigmas=0.0)
+    poor = 4.0 * cfg.max_noise_scale
+
+    def poor_first_fit(self, A, B, dt, excluded, wide_level=None):
+        res = real(self, A, B, dt, excluded, wide_level)
+        if excluded is None or refit_poor:
+            res["noise_scale"] = poor
+        fits.append((excluded is not None, res["noise_scale"]))
+        return res
+
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", poor_first_fit)
+    _, rec = _run(preset, img_a, img_b, config=cfg)
+    assert [f[0] for f in fits] == [False, True]  # the poor first fit, then the own-map refit
+    assert ("own-map" in rec.flags) == (not refit_poor)
+    assert ("poor-fit" in rec.flags) == refit_poor
+    assert rec.degraded == refit_poor
+
+
 @pytest.mark.parametrize("height_m", [0.3, 0.5])
 def test_first_pair_maps_its_own_first_frame(height_m) -> None:
     """The first pair has no off-road map from a previous pair: it maps its first frame
