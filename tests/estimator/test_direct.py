@@ -791,6 +791,8 @@ def test_poor_first_fit_gets_its_own_map_and_keeps_its_failure_if_refit_fails(
     assert ("own-map" in rec.flags) == (not refit_poor)
     assert ("poor-fit" in rec.flags) == refit_poor
     assert rec.degraded == refit_poor
+    # a failed pair returns its prior (time update + CAN speed), a kept refit its own fit
+    assert np.array_equal(rec.x, rec.x_prior) == refit_poor
 
 
 @pytest.mark.parametrize("height_m", [0.3, 0.5])
