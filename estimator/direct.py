@@ -825,7 +825,8 @@ class EgoMotionEstimator:
         self.R_car_cam = mount.R_car_cam
         self.filter_cfg = filter_cfg
         self.can_missing_inflation = can_missing_inflation
-        self.ekf = IteratedEKF(filter_cfg, self.R_car_cam, self.K0)
+        self.can_offset_y_m = float(mount.position_m[1])  # CAN: the centreline's speed
+        self.ekf = IteratedEKF(filter_cfg, self.R_car_cam, self.K0, self.can_offset_y_m)
         self._k = 0
         self._t_prev: float | None = None
         self._can_prev = math.nan
@@ -888,13 +889,15 @@ class EgoMotionEstimator:
             # the pair's mean speed: mean of the CAN at both ends when both are known
             v_can = can if math.isnan(can_prev) else 0.5 * (can + can_prev)
             ekf = self.ekf
-            if not can_consistent(ekf.x, ekf.P, v_can, self.R_car_cam, cfg):
+            if not can_consistent(ekf.x, ekf.P, v_can, self.R_car_cam, cfg, self.can_offset_y_m):
                 flags.append("can-reset")
                 reasons.append(
                     f"predicted speed {(self.R_car_cam @ ekf.x[V_SLICE])[0]:.2f} m/s "
                     f"contradicts the CAN ({v_can:.2f} m/s): speed and yaw rate re-initialised"
                 )
-                ekf.x, ekf.P = reset_speed(ekf.x, ekf.P, v_can, self.R_car_cam, cfg)
+                ekf.x, ekf.P = reset_speed(
+                    ekf.x, ekf.P, v_can, self.R_car_cam, cfg, self.can_offset_y_m
+                )
             ekf.fuse_can(v_can)
             self._v_can = v_can
         if self.mount.lever_arm_m is not None:  # kinematic model: no side slip at the axle
@@ -1317,7 +1320,7 @@ class DirectEstimator(EgoMotionEstimator):
             )
         v_can = self._v_can
         if not math.isnan(v_can) and not can_consistent(
-            self.ekf.x, self.ekf.P, v_can, self.R_car_cam, self.filter_cfg
+            self.ekf.x, self.ekf.P, v_can, self.R_car_cam, self.filter_cfg, self.can_offset_y_m
         ):
             speed = float((self.R_car_cam @ self.ekf.x[V_SLICE])[0])
             return (

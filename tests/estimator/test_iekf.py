@@ -7,10 +7,12 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from scipy.optimize import least_squares
 
+from estimator.camera_io import load_camera
 from estimator.iekf import (
     FilterConfig,
     IteratedEKF,
     can_consistent,
+    can_row,
     can_speed_update,
     data_snooping,
     iekf_update,
@@ -183,6 +185,53 @@ def test_can_prior_is_forward_and_not_overconfident() -> None:
     C[0, :3] = MOUNT.R_car_cam[0]
     x2, _ = iekf_update(x, x, np.linalg.inv(P), C, np.array([18.0 - C[0] @ x]), np.array([0.01]))
     assert MOUNT.R_car_cam[0] @ x2[:3] == pytest.approx(18.0, abs=0.02)
+
+
+def _side_camera_in_a_turn(v_mps: float, yaw_rate_rps: float) -> tuple[CameraMount, np.ndarray]:
+    """The rectilinear preset's mount (0.95 m left of the centreline) and the true state of
+    a rigid car whose centreline moves forward at v_mps, turning at yaw_rate_rps, by the
+    rigid-body velocity field v(p) = v(o) + w x (p - o) (independent of `can_row`)."""
+    _, mount = load_camera("rectilinear-rear-left")
+    w_car = np.array([0.0, 0.0, yaw_rate_rps])
+    v_view_car = np.array([v_mps, 0.0, 0.0]) + np.cross(w_car, mount.position_m)
+    R = mount.R_car_cam
+    return mount, np.r_[R.T @ v_view_car, R.T @ w_car, np.zeros(3)]
+
+
+def test_can_row_is_the_forward_speed_of_the_centreline() -> None:
+    """The CAN reports the car's (centreline's) speed; a side viewpoint's own forward speed
+    differs by yaw rate x its offset (0.36 m/s at 22 deg/s and 0.95 m)."""
+    mount, x = _side_camera_in_a_turn(7.5, np.radians(22.0))
+    y = float(mount.position_m[1])
+    assert y == pytest.approx(0.95)
+    assert can_row(mount.R_car_cam, y) @ x == pytest.approx(7.5, abs=1e-12)
+    v_view = (mount.R_car_cam @ x[:3])[0]
+    assert v_view == pytest.approx(7.5 - 0.95 * np.radians(22.0), abs=1e-12)
+    assert can_row(mount.R_car_cam) @ x == pytest.approx(v_view)  # offset 0: the viewpoint
+
+
+def test_exact_can_leaves_a_side_cameras_true_speed_in_a_turn() -> None:
+    """An exact CAN speed does not pull a side camera's (correct) state in a turn: the
+    update's innovation is zero. Without the offset it would pull the viewpoint's speed
+    up towards the centreline's, by most of 0.36 m/s."""
+    cfg = FilterConfig()
+    mount, x_true = _side_camera_in_a_turn(7.5, np.radians(22.0))
+    y = float(mount.position_m[1])
+    P = np.diag([3.0**2] * 3 + [0.01**2] * 3 + [0.01**2] * 3)  # V still open: the CAN leads
+    x, _ = can_speed_update(x_true, P, 7.5, mount.R_car_cam, cfg, y)
+    assert np.allclose(x, x_true, atol=1e-12)
+    ekf = IteratedEKF(cfg, mount.R_car_cam, mount.K0, can_offset_y_m=y)
+    ekf.x, ekf.P = x_true.copy(), P.copy()
+    ekf.fuse_can(7.5)
+    assert np.allclose(ekf.x, x_true, atol=1e-12)
+    x0, _ = can_speed_update(x_true, P, 7.5, mount.R_car_cam, cfg)  # the viewpoint's speed
+    assert (mount.R_car_cam @ (x0 - x_true)[:3])[0] > 0.2
+    # the gate and the reset use the same row: the reset puts the viewpoint at v - r y
+    x2, _ = reset_speed(x_true, P, 7.5, mount.R_car_cam, cfg, y)
+    v2_car = mount.R_car_cam @ x2[:3]
+    assert v2_car[0] == pytest.approx(7.5 - y * np.radians(22.0), abs=1e-12)
+    assert np.allclose(x2[3:], x_true[3:])
+    assert can_consistent(x_true, P, 7.5, mount.R_car_cam, cfg, y)
 
 
 def test_filter_class_cycle() -> None:
