@@ -673,7 +673,8 @@ def _column_scale(dt_s: float, speed_mps: float) -> np.ndarray:
 @dataclass
 class _Frame:
     """A frame's pyramid: per level (H_l, W_l) float32 images [I, dI/du, dI/dv] (level px),
-    gradient magnitude and its 3x3 local maxima; reason: why the frame is unusable ("" if ok)."""
+    gradient magnitude and its 3x3 local maxima; reason: why the frame is unusable ("" if ok);
+    roi: `roi_gradients` of the levels read so far."""
 
     t_s: float
     stacks: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -681,6 +682,7 @@ class _Frame:
     local_max: list[np.ndarray | None]
     gray: np.ndarray
     reason: str
+    roi: dict[int, tuple[Any, np.ndarray, np.ndarray | None]] = field(default_factory=dict)
 
 
 def build_frame(gray: np.ndarray, t_s: float, cfg: DirectConfig, reason: str) -> _Frame:
@@ -699,6 +701,22 @@ def build_frame(gray: np.ndarray, t_s: float, cfg: DirectConfig, reason: str) ->
         mags.append(mag)
         lmax.append(mag >= cv2.dilate(mag, np.ones((3, 3), np.uint8)) if cfg.nms else None)
     return _Frame(t_s, stacks, mags, lmax, gray, reason)
+
+
+def roi_gradients(frame: _Frame, level: _Level, lvl: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """(M,) gradient magnitude and (M,) bool 3x3 maxima (None without NMS) of a frame at
+    the level's candidates (``level.roi_idx``). Gathered once per frame and level: a frame
+    is read as B (`_road_residuals`), then as A by every pass of the next pair."""
+    hit = frame.roi.get(lvl)
+    if hit is None or hit[0] is not level:
+        lmax = frame.local_max[lvl]
+        hit = (
+            level,
+            frame.mags[lvl].ravel()[level.roi_idx],
+            None if lmax is None else lmax.ravel()[level.roi_idx],
+        )
+        frame.roi[lvl] = hit
+    return hit[1], hit[2]
 
 
 def sample_points(images: tuple[np.ndarray, ...], w_level: np.ndarray) -> np.ndarray:
@@ -730,6 +748,14 @@ def _in_level(w: np.ndarray, P: np.ndarray, K0: np.ndarray, shape: tuple[int, in
     return ok
 
 
+def _valid_at(valid: np.ndarray, w: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(N,) bool: ok where the mask valid (H, W) is set at the nearest pixel of w (N, 2).
+    w is inside the image where ok and -1 elsewhere (`_in_level`): no clipping needed (a
+    -1 row reads some pixel, and ok is False there)."""
+    r = np.rint(w).astype(np.intp)
+    return ok & (valid.ravel()[r[:, 1] * valid.shape[1] + r[:, 0]] > 0)
+
+
 def select_points(
     level: _Level,
     frame: _Frame,
@@ -759,10 +785,10 @@ def select_points(
     A gradient-strength ranking picks the strongest edges of the road ring: guard
     rails, posts, vehicles and the ego car's roof, not the road.
     """
-    mag = frame.mags[lvl].ravel()[level.roi_idx]
+    mag, lmax = roi_gradients(frame, level, lvl)
     keep = mag > cfg.grad_threshold
     if cfg.nms:
-        keep &= frame.local_max[lvl].ravel()[level.roi_idx]
+        keep &= lmax
     if exclude is not None:
         keep &= ~exclude
     sel = np.flatnonzero(keep)
@@ -1116,11 +1142,8 @@ class DirectEstimator(EgoMotionEstimator):
         # step 1: warp the points into B with x̂ (eq. 3, 6-10)
         P_b = map_rays(rays, homography(x, self.K0, dt))
         w_b = cam.project(P_b) / s  # level pixels
-        hl, wl = level.shape
         inside = _in_level(w_b, P_b, self.K0, level.shape)
-        ui = np.rint(w_b[:, 0]).astype(int).clip(0, wl - 1)
-        vi = np.rint(w_b[:, 1]).astype(int).clip(0, hl - 1)
-        idx = np.flatnonzero(inside & (level.valid_b[vi, ui] > 0))
+        idx = np.flatnonzero(_valid_at(level.valid_b, w_b, inside))
         # step 2: brightness and spatial gradient of B at w_b, temporal gradient
         smp = sample_points(B.stacks[lvl], np.take(w_b, idx, 0))
         b_val, g = smp[:, 0].astype(np.float64), smp[:, 1:3].astype(np.float64)
@@ -1710,8 +1733,8 @@ class DirectEstimator(EgoMotionEstimator):
         level = self.levels[lvl]
         s = float(level.scale)
         hm, wm = level.shape
-        lmax = B.local_max[lvl]
-        smp = np.flatnonzero(ok & lmax.ravel()[idx] if lmax is not None else ok)
+        _, lmax = roi_gradients(B, level, lvl)
+        smp = np.flatnonzero(ok & lmax[tex] if lmax is not None else ok)
         rays = np.take(level.roi_rays32, tex[smp], 0)
         r2_road, w_road, b_val = np.square(r_road[smp]), np.take(w_road, smp, 0), b_val[smp]
 
@@ -1857,16 +1880,12 @@ class DirectEstimator(EgoMotionEstimator):
         """
         cfg, level = self.cfg, self.levels[lvl]
         s = float(level.scale)
-        hm, wm = level.shape
-        g = B.mags[lvl].ravel()[level.roi_idx]
+        g, _ = roi_gradients(B, level, lvl)
         tex = np.flatnonzero(g > cfg.grad_threshold)
         idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
         gain = 1.0 / self._gain if backward else self._gain
         P_a, w_a = self._plane_pixels(np.take(level.roi_rays32, tex, 0), self.K0, dt, backward, s)
-        ok = _in_level(w_a, P_a, self.K0, level.shape)
-        ui = np.rint(w_a[:, 0]).astype(int).clip(0, wm - 1)
-        vi = np.rint(w_a[:, 1]).astype(int).clip(0, hm - 1)
-        ok &= level.valid_b[vi, ui] > 0
+        ok = _valid_at(level.valid_b, w_a, _in_level(w_a, P_a, self.K0, level.shape))
         a_val = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
         b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
         return tex, idx, g, w_a, ok, b_val, a_val - gain * b_val
