@@ -358,6 +358,13 @@ class HyperbolicCamera(CameraModel):
         """Mei's generalised focal length along v: fv q1 / q2 [px]."""
         return self.fv * self.q1 / self.q2
 
+    def _q(self) -> tuple[float, float, float]:
+        """(q1, q2, q3) of eq. 7, computed once: the properties recompute c each time (a few
+        µs, and `project` is called ~40 times a frame by the estimator)."""
+        if "q" not in self._cache:
+            self._cache["q"] = (self.q1, self.q2, self.q3)
+        return self._cache["q"]
+
     @property
     def K(self) -> np.ndarray:
         """(3, 3) calibration matrix of the conventional camera (eq. 8)."""
@@ -450,16 +457,26 @@ class HyperbolicCamera(CameraModel):
         float32 (`CameraModel.project`).
         """
         P = check_points(P, "project", dtype)
+        q1, q2, q3 = self._q()
         X, Y, Z = P.T
         n = row_norm(P)
-        den = self.q2 * Z + self.q3 * n  # eq. 6 denominator
+        den = q2 * Z
+        den += q3 * n  # eq. 6 denominator
+        # (in place and into one output: the values of the plain expressions, fewer passes)
         with np.errstate(invalid="ignore", divide="ignore"):
-            ok = den > _SINGULAR_TOL * self.q2 * n
-            s = np.where(ok, self.q1 / np.where(ok, den, 1.0), np.nan)
+            ok = den > _SINGULAR_TOL * q2 * n
+            s = np.full(len(n), np.nan, dtype)
+            np.divide(q1, den, out=s, where=ok)
         x, y = s * X, s * Y  # eq. 6: p = q1/(q2 Z + q3 |P|) (X, Y)
-        u = self.fu * x + self.skew * y + self.u0  # eq. 8: w = K [p; 1]
-        v = self.fv * y + self.v0
-        return np.stack([u, v], axis=1)
+        w = np.empty((len(n), 2), dtype)
+        u = self.fu * x  # eq. 8: w = K [p; 1]
+        u += self.skew * y
+        u += self.u0
+        w[:, 0] = u
+        y *= self.fv
+        y += self.v0
+        w[:, 1] = y
+        return w
 
     def unproject(self, w: np.ndarray) -> np.ndarray:
         """(N, 2) pixels -> (N, 3) unit rays in camera coordinates (eq. 9-10).
@@ -496,26 +513,34 @@ class HyperbolicCamera(CameraModel):
         tests/estimator/test_camera.py. NaN where `project` is NaN.
         """
         P = check_points(P, "project_jacobian")
+        q1, q2, q3 = self._q()
         X, Y, Z = P.T
         n = row_norm(P)
-        den = self.q2 * Z + self.q3 * n
+        den = q2 * Z + q3 * n
         with np.errstate(invalid="ignore", divide="ignore"):
-            ok = den > _SINGULAR_TOL * self.q2 * n
-            g = np.where(ok, 1.0 / np.where(ok, den * n, 1.0), np.nan)
-        q1, q2, q3 = self.q1, self.q2, self.q3
+            ok = den > _SINGULAR_TOL * q2 * n
+            g = np.full(len(n), np.nan)
+            np.divide(1.0, den * n, out=g, where=ok)
         x = q1 * X * g * n  # eq. 6
         y = q1 * Y * g * n
         t = q2 * n + q3 * Z
-        Jp = np.empty((P.shape[0], 2, 3))
-        Jp[:, 0, 0] = q1 * n - q3 * x * X  # Table 1 row 4, sign corrected
-        Jp[:, 0, 1] = -q3 * x * Y
-        Jp[:, 0, 2] = -x * t
-        Jp[:, 1, 0] = -q3 * y * X
-        Jp[:, 1, 1] = q1 * n - q3 * y * Y
-        Jp[:, 1, 2] = -y * t
-        Jp *= g[:, None, None]
+        q1n = q1 * n
+        # dp/dP (Table 1 row 4, sign corrected), row by row
+        p0 = ((q1n - q3 * x * X) * g, -q3 * x * Y * g, -x * t * g)
+        p1 = (-q3 * y * X * g, (q1n - q3 * y * Y) * g, -y * t * g)
+        J = np.empty((P.shape[0], 2, 3))
+        if self.skew == 0.0:
+            # Table 1 row 5, dw/dp = diag(fu, fv): the matrix product below, entry by entry,
+            # without its per-point loop. The same values: the product sums from +0 and adds
+            # the zero term, which only turns a -0 into +0 (as "+ 0.0" does)
+            for j in range(3):
+                J[:, 0, j] = self.fu * p0[j] + 0.0
+                J[:, 1, j] = self.fv * p1[j] + 0.0
+            return J
+        for j in range(3):
+            J[:, 0, j], J[:, 1, j] = p0[j], p1[j]
         Kp = np.array([[self.fu, self.skew], [0.0, self.fv]])  # Table 1 row 5: dw/dp
-        return Kp @ Jp
+        return Kp @ J
 
     def _valid_direction(self, P: np.ndarray) -> np.ndarray:
         n = row_norm(P)
