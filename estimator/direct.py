@@ -1060,6 +1060,8 @@ class DirectEstimator(EgoMotionEstimator):
             um = np.clip(np.rint(level.roi_w[:, 0] / sm), 0, wm - 1).astype(np.int64)
             vm = np.clip(np.rint(level.roi_w[:, 1] / sm), 0, hm - 1).astype(np.int64)
             level.to_mask = vm * wm + um
+        # (4, 1) fractions of a marked pixel's motion that `_smeared_marks` also marks
+        self._smear_steps = np.linspace(-cfg.mask_smear, cfg.mask_smear, 5)[[0, 1, 3, 4], None]
         self._offroad: np.ndarray | None = None  # (H_m, W_m) uint8 of the previous frame
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
@@ -1553,9 +1555,16 @@ class DirectEstimator(EgoMotionEstimator):
         if offroad is None:
             return None
         out, mask_scale = [], self.levels[self._mask_lvl].scale
+        m, done = offroad, 0  # the mask dilated by radius `done` so far
         for level in self.levels:
             r = math.ceil(self.cfg.mask_support_px * level.scale / mask_scale)
-            m = cv2.dilate(offroad, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r else offroad
+            if r < done:  # (radii grow with the level; else start over)
+                m, done = offroad, 0
+            if r > done:
+                # a square dilation of a square dilation is one by the summed radius (max
+                # is exact): each level dilates the previous one by the radius it adds
+                m = cv2.dilate(m, np.ones((2 * (r - done) + 1,) * 2, np.uint8))
+                done = r
             out.append(m.ravel()[level.to_mask] > 0)
         return out
 
@@ -1848,10 +1857,18 @@ class DirectEstimator(EgoMotionEstimator):
         level = self.levels[rl]
         hm, wm = marks.shape
         hr, wr = level.shape
-        tex = ((B.mags[lvl] > cfg.grad_threshold) & self._mask_roi).astype(np.float32)
-        # shares per cell: the means over the cell's mask-level pixels (INTER_AREA)
-        n_tex = cv2.resize(tex, (wr, hr), interpolation=cv2.INTER_AREA)
-        n_mark = cv2.resize(marks.astype(np.float32) * tex, (wr, hr), interpolation=cv2.INTER_AREA)
+        # B's textured ROI pixels, 0/1 (from the ROI's gradients: a sixth of the image)
+        mask_level = self.levels[lvl]
+        mag, _ = roi_gradients(B, mask_level, lvl)
+        tex8 = np.zeros(hm * wm, np.uint8)
+        tex8[mask_level.roi_idx] = mag > cfg.grad_threshold
+        tex8 = tex8.reshape(hm, wm)
+        # shares per cell: the means over the cell's mask-level pixels (INTER_AREA); marks
+        # are 0/1 too, so "marks & tex" is their product
+        n_tex = cv2.resize(tex8.astype(np.float32), (wr, hr), interpolation=cv2.INTER_AREA)
+        n_mark = cv2.resize(
+            (marks & tex8).astype(np.float32), (wr, hr), interpolation=cv2.INTER_AREA
+        )
         carried = np.zeros(hr * wr, np.float32)
         if raised is not None:
             P_a, w_a = self._plane_pixels(level.roi_rays32, self.K0, dt, False, float(level.scale))
@@ -1865,7 +1882,7 @@ class DirectEstimator(EgoMotionEstimator):
         self._raised = ev
         cells = (ev >= cfg.raised_share).astype(np.uint8)
         up = cv2.resize(cells, (wm, hm), interpolation=cv2.INTER_NEAREST)
-        return up & tex.astype(np.uint8)
+        return up & tex8
 
     def _road_residuals(
         self, A: _Frame, B: _Frame, dt: float, lvl: int, backward: bool
@@ -1901,7 +1918,7 @@ class DirectEstimator(EgoMotionEstimator):
         out[idx] = 1
         if self.cfg.mask_smear > 0 and len(idx):
             vb, ub = np.divmod(idx, wm)
-            t = np.linspace(-self.cfg.mask_smear, self.cfg.mask_smear, 5)[[0, 1, 3, 4], None]
+            t = self._smear_steps
             u = np.rint(ub + t * (ub - w_a[:, 0])).astype(np.intp)  # (4, M): t = 0 is idx
             v = np.rint(vb + t * (vb - w_a[:, 1])).astype(np.intp)
             inb = (u >= 0) & (u < wm) & (v >= 0) & (v < hm)
