@@ -940,7 +940,7 @@ class EgoMotionEstimator:
         dt = t_s - t_prev
         flags, reasons = [], []
         cfg = self.filter_cfg
-        nominal = cfg.nominal_dt_s or (float(np.median(self._dts)) if self._dts else None)
+        nominal = cfg.nominal_dt_s or (fast_median(np.asarray(self._dts)) if self._dts else None)
         if nominal is not None and dt > cfg.gap_factor * nominal:
             flags.append("time-gap")
             reasons.append(

@@ -11,7 +11,7 @@ import numpy as np
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix `[v]x` of a 3-vector, so that `[v]x @ u = v x u`."""
-    x, y, z = np.asarray(v, dtype=float).reshape(3)
+    x, y, z = np.asarray(v, dtype=float).reshape(3).tolist()  # (Python floats: faster to build)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 

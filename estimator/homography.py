@@ -59,15 +59,24 @@ def homography_parts(
     x: np.ndarray, K0: np.ndarray, dt_s: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(R (3, 3), D (3,), K (3,)) of eq. 4 for state x (9,), road plane K0 (3,), dt [s]."""
+    R, D, K, _ = _parts(x, K0, dt_s)
+    return R, D, K
+
+
+def _parts(
+    x: np.ndarray, K0: np.ndarray, dt_s: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`homography_parts` and M = I - [W]x dt - [A]x (for `homography_jacobian`)."""
     V, W, A = x[V_SLICE], x[W_SLICE], x[A_SLICE]
-    Wx, Ax = skew(W), skew(A)
+    Ax = skew(A)
     # eq. 4: R = I - [W]x dt
-    R = _E - Wx * dt_s
+    R = _E - skew(W) * dt_s
     # eq. 4: D = -(I - [W]x dt - [A]x) V dt  (sign derived in the module docstring)
-    D = -(_E - Wx * dt_s - Ax) @ V * dt_s
+    M = R - Ax
+    D = -M @ V * dt_s
     # eq. 4: K = (I - [A]x) K0
     K = (_E - Ax) @ np.asarray(K0, dtype=float)
-    return R, D, K
+    return R, D, K, M
 
 
 def homography(x: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarray:
@@ -76,9 +85,9 @@ def homography(x: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarray:
     x: (9,) state (V, W, A); K0: (3,) nominal road plane (K0^T P = 1 on the road) [1/m];
     dt_s: time from frame a to frame b [s].
     """
-    R, D, K = homography_parts(np.asarray(x, dtype=float), K0, dt_s)
+    R, D, K, _ = _parts(np.asarray(x, dtype=float), K0, dt_s)
     # eq. 3: H = R + D K^T
-    return R + np.outer(D, K)
+    return R + D[:, None] * K
 
 
 def homography_jacobian(x: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarray:
@@ -91,8 +100,7 @@ def homography_jacobian(x: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarra
     x = np.asarray(x, dtype=float)
     K0 = np.asarray(K0, dtype=float)
     V = x[V_SLICE]
-    _, D, K = homography_parts(x, K0, dt_s)
-    M = _E - skew(x[W_SLICE]) * dt_s - skew(x[A_SLICE])  # I - [W]x dt - [A]x
+    _, D, K, M = _parts(x, K0, dt_s)  # M = I - [W]x dt - [A]x
     EV = _SKEW_E @ V  # (3, 3): row i = [e_i]x V
     EK0 = _SKEW_E @ K0  # (3, 3): row i = [e_i]x K0
     dH = np.empty((N_STATE, 3, 3))
