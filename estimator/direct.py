@@ -93,6 +93,7 @@ from estimator.homography import (
     V_SLICE,
     W_SLICE,
     dh_dx,
+    homographies,
     homography,
     make_state,
 )
@@ -1661,7 +1662,7 @@ class DirectEstimator(EgoMotionEstimator):
         # all grid points at once: (G, 9) states -> (G, N) costs
         ga, gb = np.meshgrid(steps[0], steps[1], indexing="ij")
         X = x0 + ga.reshape(-1, 1) * dirs[0] + gb.reshape(-1, 1) * dirs[1]
-        Hs = np.stack([homography(x, self.K0, dt) for x in X])  # (G, 3, 3)
+        Hs = homographies(X, self.K0, dt)  # (G, 3, 3)
         # float32 (`CameraModel.project`): the grid is only ranked, ~1e-4 px is plenty
         P_b = (rays.astype(np.float32) @ Hs.transpose(0, 2, 1).astype(np.float32)).reshape(-1, 3)
         w_b = cam.project(P_b, np.float32) / np.float32(s)

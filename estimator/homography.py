@@ -90,6 +90,34 @@ def homography(x: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarray:
     return R + D[:, None] * K
 
 
+def _skews(v: np.ndarray) -> np.ndarray:
+    """(G, 3, 3) `skew` of each row of v (G, 3)."""
+    S = np.zeros((len(v), 3, 3))
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    S[:, 0, 1], S[:, 0, 2] = -z, y
+    S[:, 1, 0], S[:, 1, 2] = z, -x
+    S[:, 2, 0], S[:, 2, 1] = -y, x
+    return S
+
+
+def homographies(X: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarray:
+    """(G, 3, 3) `homography` of each state of X (G, 9) (a grid of states).
+
+    The same values as calling `homography` per state: the same elementwise operations,
+    and the matrix-vector products of eq. 4 as one batched np.matmul, which runs the
+    same BLAS matrix-vector product per state as the (3, 3) @ (3,) of `homography`
+    (tests/estimator/test_homography.py compares them bit for bit).
+    """
+    X = np.asarray(X, dtype=float)
+    V, W, A = X[:, V_SLICE], X[:, W_SLICE], X[:, A_SLICE]
+    Ax = _skews(A)
+    R = _E - _skews(W) * dt_s  # eq. 4
+    M = R - Ax
+    D = np.matmul(-M, V[:, :, None])[:, :, 0] * dt_s
+    K = np.matmul(_E - Ax, np.asarray(K0, dtype=float))
+    return R + D[:, :, None] * K[:, None, :]  # eq. 3
+
+
 def homography_jacobian(x: np.ndarray, K0: np.ndarray, dt_s: float) -> np.ndarray:
     """(9, 3, 3) dH/dx_j for each state component j (Table 1, rows 1-2).
 

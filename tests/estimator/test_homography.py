@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from estimator.camera_io import load_camera
 from estimator.homography import (
     dh_dx,
+    homographies,
     homography,
     homography_jacobian,
     homography_parts,
@@ -130,3 +131,16 @@ def test_bad_state_shape() -> None:
         check_state(np.zeros(6))
     with pytest.raises(ValueError, match="finite"):
         check_state(np.full(9, np.nan))
+
+
+def test_batched_homographies_are_bitwise_the_single_ones() -> None:
+    """`homographies` (the grid search's batched form) gives exactly `homography` per
+    state: random grids around random states, zero and -0 components included."""
+    rng = np.random.default_rng(0)
+    for i in range(300):
+        x0 = rng.normal(size=9) * rng.choice([1e-3, 1.0, 30.0])
+        X = x0 + rng.normal(size=(int(rng.integers(1, 60)), 9)) * rng.choice([0, 1e-3, 1], size=9)
+        X[:, rng.integers(0, 9)] = 0.0 if i % 2 else -0.0
+        K0, dt = rng.normal(size=3), float(rng.random() * 0.1)
+        single = np.stack([homography(x, K0, dt) for x in X])
+        assert homographies(X, K0, dt).tobytes() == single.tobytes()
