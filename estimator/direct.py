@@ -1083,6 +1083,7 @@ class DirectEstimator(EgoMotionEstimator):
         # (4, 1) fractions of a marked pixel's motion that `_smeared_marks` also marks
         self._smear_steps = np.linspace(-cfg.mask_smear, cfg.mask_smear, 5)[[0, 1, 3, 4], None]
         self._offroad: np.ndarray | None = None  # (H_m, W_m) uint8 of the previous frame
+        self._parallax_boxes: dict[tuple[int, int], Any] = {}  # `_parallax_box`
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
@@ -1722,6 +1723,21 @@ class DirectEstimator(EgoMotionEstimator):
         P = map_rays(rays32, M, np.float32)
         return P, self.camera.project(P, np.float32) / np.float32(s)
 
+    def _parallax_box(self, lvl: int, reach: int) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """((row0, row1, col0, col1), (M,) flat index of each ROI candidate in it): the ROI's
+        bounding box at level lvl grown by reach (clipped to the level), where
+        `_parallax_marks` blurs. Computed once per level and reach."""
+        key = (lvl, reach)
+        if key not in self._parallax_boxes:
+            level = self.levels[lvl]
+            hm, wm = level.shape
+            r0, r1, c0, c1 = level.box
+            box = (max(r0 - reach, 0), min(r1 + reach, hm), max(c0 - reach, 0), min(c1 + reach, wm))
+            vi, ui = np.divmod(level.roi_idx, wm)
+            box_idx = (vi - box[0]) * (box[3] - box[2]) + (ui - box[2])
+            self._parallax_boxes[key] = box, box_idx
+        return self._parallax_boxes[key]
+
     def _parallax_marks(
         self,
         A: _Frame,
@@ -1761,7 +1777,6 @@ class DirectEstimator(EgoMotionEstimator):
         cfg = self.cfg
         level = self.levels[lvl]
         s = float(level.scale)
-        hm, wm = level.shape
         _, lmax = roi_gradients(B, level, lvl)
         smp = np.flatnonzero(ok & lmax[tex] if lmax is not None else ok)
         rays = np.take(level.roi_rays32, tex[smp], 0)
@@ -1769,20 +1784,13 @@ class DirectEstimator(EgoMotionEstimator):
 
         # The Gaussian window is truncated at 3 sigma (as OpenCV does for 8-bit images; 4
         # for float ones): 0.3 % of its weight, 2/3 of the taps. The blurs run on the ROI's
-        # bounding box and a kernel's reach around it (beyond it the images are zero): the
-        # same sums as on the whole level, ~0.7 of the work.
+        # bounding box and a kernel's reach around it (beyond it the images are zero,
+        # `_parallax_box`): the same sums as on the whole level, ~0.7 of the work.
         half = math.ceil(3 * cfg.parallax_window_px)
-        reach = half + 1
-        r0, r1, c0, c1 = level.box
-        r0, r1, c0, c1 = (
-            max(r0 - reach, 0),
-            min(r1 + reach, hm),
-            max(c0 - reach, 0),
-            min(c1 + reach, wm),
-        )
+        (r0, r1, c0, c1), box_idx = self._parallax_box(lvl, half + 1)
         bw = c1 - c0
-        vi, ui = np.divmod(idx, wm)
-        at, sat = (vi - r0) * bw + (ui - c0), (vi[smp] - r0) * bw + (ui[smp] - c0)
+        at = box_idx[tex]
+        sat = at[smp]
 
         window = gaussian_kernel(cfg.parallax_window_px, 2 * half + 1)
 
