@@ -1644,13 +1644,16 @@ class DirectEstimator(EgoMotionEstimator):
         # prior std of the coefficient along each direction: sqrt(dᵀ P⁻ d) / |d|²
         dPd = np.einsum("ij,jk,ik->i", dirs, ekf.P_prior, dirs)
         sig = np.sqrt(np.maximum(dPd, 0.0)) / np.maximum(np.sum(dirs**2, axis=1), 1e-24)
-        H0 = homography(x0, self.K0, dt)
-        w0 = cam.project(map_rays(rays, H0))
+        # the points at x0 and a small step along each direction, the three warps at once
+        # (`homographies`, a batched `map_rays`: the same values as one by one)
+        eps = [1e-3 / max(np.linalg.norm(d), 1e-12) for d in dirs]
+        Hs = homographies(np.stack([x0, x0 + eps[0] * dirs[0], x0 + eps[1] * dirs[1]]), self.K0, dt)
+        P3 = rays @ np.ascontiguousarray(Hs.transpose(0, 2, 1))  # (3, N, 3)
+        w0, *w1s = cam.project(P3.reshape(-1, 3)).reshape(3, len(rays), 2)
         steps = []
-        for j in range(2):
-            eps = 1e-3 / max(np.linalg.norm(dirs[j]), 1e-12)
-            w1 = cam.project(map_rays(rays, homography(x0 + eps * dirs[j], self.K0, dt)))
-            disp = nan_to_num_fast(np.linalg.norm(w1 - w0, axis=1)) / eps / s  # level px per unit
+        for j, w1 in enumerate(w1s):
+            # level px per unit
+            disp = nan_to_num_fast(np.linalg.norm(w1 - w0, axis=1)) / eps[j] / s
             d90 = fast_percentile(disp, 90) if len(disp) else 0.0
             half = cfg.search_sigmas * sig[j]
             if d90 <= 0 or half * d90 < cfg.search_step_px:
