@@ -1726,6 +1726,19 @@ class DirectEstimator(EgoMotionEstimator):
         P = map_rays(rays32, M, np.float32)
         return P, self.camera.project(P, np.float32) / np.float32(s)
 
+    def _planes_pixels(
+        self, rays32: np.ndarray, Ks: list[np.ndarray], dt: float, backward: bool, s: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`_plane_pixels` for several planes Ks at once: P (L, N, 3) and level pixels (L, N,
+        2). The same values: the homographies one by one, their inverses, products and the
+        projection batched (numpy runs the same LAPACK / BLAS call per plane; the
+        projection is row by row)."""
+        Hs = np.stack([homography(self.ekf.x, K, dt) for K in Ks])
+        Ms = Hs if backward else np.linalg.inv(Hs)
+        P = np.asarray(rays32, np.float32) @ np.ascontiguousarray(Ms.transpose(0, 2, 1), np.float32)
+        w = self.camera.project(P.reshape(-1, 3), np.float32) / np.float32(s)
+        return P, w.reshape(len(Ks), -1, 2)
+
     def _parallax_box(self, lvl: int, reach: int) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """((row0, row1, col0, col1), (M,) flat index of each ROI candidate in it): the ROI's
         bounding box at level lvl grown by reach (clipped to the level), where
@@ -1810,12 +1823,16 @@ class DirectEstimator(EgoMotionEstimator):
         loud = blurred(r2_road - noise**2 / cfg.snoop_threshold) > 0
         better = np.zeros(len(tex), bool)
         gain = 1.0 / self._gain if backward else self._gain
-        for lam in cfg.parallax_lambdas:
-            P_a, w_a = self._plane_pixels(rays, lam * self.K0, dt, backward, s)
-            apart = np.sum(np.square(w_a - w_road), axis=1) > cfg.parallax_min_px**2
-            use = _in_level(w_a, P_a, self.K0, level.shape) & apart
-            a_l = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
-            r2 = np.where(use, np.square(a_l - gain * b_val), r2_road)
+        # every hypothesis's warp and samples at once: (L, n) per plane lambda
+        n_lam = len(cfg.parallax_lambdas)
+        Ks = [lam * self.K0 for lam in cfg.parallax_lambdas]
+        P_l, w_l = self._planes_pixels(rays, Ks, dt, backward, s)
+        apart = np.sum(np.square(w_l - w_road), axis=2) > cfg.parallax_min_px**2
+        use = _in_level(w_l.reshape(-1, 2), P_l.reshape(-1, 3), self.K0, level.shape)
+        use = use.reshape(n_lam, -1) & apart
+        a_l = sample_points(A.stacks[lvl][:1], w_l.reshape(-1, 2))[:, 0].astype(np.float64)
+        for i, a_i in enumerate(a_l.reshape(n_lam, -1)):
+            r2 = np.where(use[i], np.square(a_i - gain * b_val), r2_road)
             better |= blurred(r2 - cfg.parallax_ratio * r2_road) < 0
         return better & ok & loud
 
