@@ -997,7 +997,9 @@ def test_fast_reductions_give_numpys_values() -> None:
     for a in arrays:
         assert np.array_equal(fast_median(a.copy()), np.median(a), equal_nan=True)
         for q in (0, 10, 37.5, 50, 90, 99.9, 100):
-            assert np.array_equal(fast_percentile(a.copy(), q), np.percentile(a, q), equal_nan=True)
+            with np.errstate(invalid="ignore"):  # inf - inf in the interpolation (numpy too)
+                got, ref = fast_percentile(a.copy(), q), np.percentile(a, q)
+            assert np.array_equal(got, ref, equal_nan=True)
     assert math.isnan(fast_median(np.zeros(0)))
     w = rng.normal(size=(100, 2))
     assert nan_to_num_fast(w) is w
