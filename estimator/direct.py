@@ -100,9 +100,7 @@ from estimator.homography import (
 from estimator.iekf import (
     FilterConfig,
     IteratedEKF,
-    can_consistent,
     data_snooping,
-    reset_speed,
     robust_weights,
     yaw_direction,
 )
@@ -918,8 +916,8 @@ class EgoMotionEstimator:
         self.R_car_cam = mount.R_car_cam
         self.filter_cfg = filter_cfg
         self.can_missing_inflation = can_missing_inflation
-        self.can_offset_y_m = float(mount.position_m[1])  # CAN: the centreline's speed
-        self.ekf = IteratedEKF(filter_cfg, self.R_car_cam, self.K0, self.can_offset_y_m)
+        # the CAN speed is the centreline's: the viewpoint is position_m[1] to its left
+        self.ekf = IteratedEKF(filter_cfg, self.R_car_cam, self.K0, float(mount.position_m[1]))
         self._k = 0
         self._t_prev: float | None = None
         self._can_prev = math.nan
@@ -982,15 +980,13 @@ class EgoMotionEstimator:
             # the pair's mean speed: mean of the CAN at both ends when both are known
             v_can = can if math.isnan(can_prev) else 0.5 * (can + can_prev)
             ekf = self.ekf
-            if not can_consistent(ekf.x, ekf.P, v_can, self.R_car_cam, cfg, self.can_offset_y_m):
+            if not ekf.can_consistent(v_can):
                 flags.append("can-reset")
                 reasons.append(
                     f"predicted speed {(self.R_car_cam @ ekf.x[V_SLICE])[0]:.2f} m/s "
                     f"contradicts the CAN ({v_can:.2f} m/s): speed and yaw rate re-initialised"
                 )
-                ekf.x, ekf.P = reset_speed(
-                    ekf.x, ekf.P, v_can, self.R_car_cam, cfg, self.can_offset_y_m
-                )
+                ekf.reset_to_can(v_can)
             ekf.fuse_can(v_can)
             self._v_can = v_can
         if self.mount.lever_arm_m is not None:  # kinematic model: no side slip at the axle
@@ -1412,9 +1408,7 @@ class DirectEstimator(EgoMotionEstimator):
                 "estimate unreliable, prior kept",
             )
         v_can = self._v_can
-        if not math.isnan(v_can) and not can_consistent(
-            self.ekf.x, self.ekf.P, v_can, self.R_car_cam, self.filter_cfg, self.can_offset_y_m
-        ):
+        if not math.isnan(v_can) and not self.ekf.can_consistent(v_can):
             speed = float((self.R_car_cam @ self.ekf.x[V_SLICE])[0])
             return (
                 "can-contradiction",
@@ -1721,10 +1715,8 @@ class DirectEstimator(EgoMotionEstimator):
         the other frame of the pair (H⁻¹: second frame to first; H when ``backward``): P
         (N, 3) and its level pixels (N, 2), in float32 (the dense off-road map: ~5x faster
         projections, ~1e-4 px)."""
-        H = homography(self.ekf.x, K, dt)
-        M = H if backward else np.linalg.inv(H)
-        P = map_rays(rays32, M, np.float32)
-        return P, self.camera.project(P, np.float32) / np.float32(s)
+        P, w = self._planes_pixels(rays32, [K], dt, backward, s)
+        return P[0], w[0]
 
     def _planes_pixels(
         self, rays32: np.ndarray, Ks: list[np.ndarray], dt: float, backward: bool, s: float

@@ -382,6 +382,18 @@ class IteratedEKF:
             self.x, self.P, v_can_mps, self.R_car_cam, self.cfg, self.can_offset_y_m
         )
 
+    def can_consistent(self, v_can_mps: float) -> bool:
+        """False when the CAN speed rules the current x̂, P out (`can_consistent`)."""
+        return can_consistent(
+            self.x, self.P, v_can_mps, self.R_car_cam, self.cfg, self.can_offset_y_m
+        )
+
+    def reset_to_can(self, v_can_mps: float) -> None:
+        """V set from the CAN speed, V and W back to their initial std (`reset_speed`)."""
+        self.x, self.P = reset_speed(
+            self.x, self.P, v_can_mps, self.R_car_cam, self.cfg, self.can_offset_y_m
+        )
+
     def fuse_nonholonomic(self, lever_m: float) -> None:
         """The rear axle does not slide sideways (`nonholonomic_update`), when configured."""
         if self.cfg.nonholonomic_sigma_mps > 0:

@@ -232,6 +232,11 @@ def test_exact_can_leaves_a_side_cameras_true_speed_in_a_turn() -> None:
     assert v2_car[0] == pytest.approx(7.5 - y * np.radians(22.0), abs=1e-12)
     assert np.allclose(x2[3:], x_true[3:])
     assert can_consistent(x_true, P, 7.5, mount.R_car_cam, cfg, y)
+    # the filter's own gate and reset (what the estimators call) carry the mount's offset
+    ekf.x, ekf.P = x_true.copy(), P.copy()
+    assert ekf.can_consistent(7.5)
+    ekf.reset_to_can(7.5)
+    assert np.array_equal(ekf.x, x2)
 
 
 def test_filter_class_cycle() -> None:
