@@ -1257,7 +1257,10 @@ class DirectEstimator(EgoMotionEstimator):
             # is in it (waiting for a usual fit would lock the map out). A poor fit too: a
             # vehicle close behind fills the road with motion the road's model cannot fit
             # (rectilinear merge, frames 90-108)
-            own = self._offroad_map(B, A, dt, res["noise_scale"], backward=True)
+            # before the first good fit (the prior is the CAN's alone) with
+            # ``first_map_residuals`` off: the plane-parallax marks alone
+            residuals = cfg.first_map_residuals or bool(self._s2_hist)
+            own = self._offroad_map(B, A, dt, res["noise_scale"], True, residuals=residuals)
             excl = self._excluded(own)
             first = res, self.ekf.x.copy(), self.ekf.P.copy(), failure
             res = self._coarse_to_fine(A, B, dt, excl)
@@ -1855,6 +1858,7 @@ class DirectEstimator(EgoMotionEstimator):
         s2: float,
         backward: bool = False,
         raised: np.ndarray | None = None,
+        residuals: bool = True,
     ) -> np.ndarray:
         """(H_m, W_m) uint8: pixels of frame B that the estimated road motion does not explain.
 
@@ -1875,15 +1879,17 @@ class DirectEstimator(EgoMotionEstimator):
 
         backward: the pair's frames in reverse (B is then the pair's first frame, A its
         second): the map of the first frame from the pair's own fit (``own_map``).
+        residuals: False: the plane-parallax marks alone (``first_map_residuals``).
         """
         cfg, lvl = self.cfg, self._mask_lvl
         hm, wm = self.levels[lvl].shape
         tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, dt, lvl, backward)
         noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
-        bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
-        if backward and not cfg.first_map_residuals and not self._s2_hist:
-            bad[:] = False  # the first map: the plane-parallax test's marks alone
-        out = self._smeared_marks(idx[bad], w_a[bad], (hm, wm))
+        if residuals:
+            bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
+            out = self._smeared_marks(idx[bad], w_a[bad], (hm, wm))
+        else:
+            out = np.zeros((hm, wm), np.uint8)
         if cfg.parallax_lambdas:
             plvl = lvl if cfg.parallax_level is None else min(cfg.parallax_level, cfg.levels - 1)
             if plvl != lvl:  # the windowed test at a coarser level (cheaper), marks upsampled

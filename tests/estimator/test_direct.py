@@ -232,8 +232,8 @@ def test_pinhole_first_map_is_the_parallax_tests_alone() -> None:
         maps = []
         real = est._offroad_map
 
-        def spy(A, B, dt, s2, backward=False, raised=None, real=real, maps=maps):
-            out = real(A, B, dt, s2, backward, raised)
+        def spy(A, B, dt, s2, backward=False, raised=None, real=real, maps=maps, **kw):
+            out = real(A, B, dt, s2, backward, raised, **kw)
             if backward:
                 maps.append(out)
             return out
