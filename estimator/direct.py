@@ -139,6 +139,13 @@ class DirectConfig:
     own_map: bool = True  # [-] a pair without a map from the previous pair (the first
     # pair; after a failed or unusual fit) maps its first frame from its own fit and fits
     # again without those pixels (`_offroad_map` backward)
+    map_carry: int = 0  # [-] pairs over which the off-road map of the last usual fit is
+    # carried (dilated by ``map_carry_px`` per pair) when a fit is unusual or fails, rather
+    # than no map and a map from the next pair's own fit: a vehicle close behind that
+    # fills the view makes the fits unusual, and an own map from such a fit leaves the
+    # vehicle in (rectilinear merge, frames 90-106: yaw rate to 12.6 deg/s, true 0)
+    map_carry_px: int = 3  # [px at the mask level] dilation of a carried map per pair: the
+    # structure it marks moves
     first_map_residuals: bool = True  # [-] the own map before the first good fit (the
     # first pair's: its prior is the CAN's alone) marks large residuals too, not only the
     # plane-parallax test's structure. Where the prior still pulls that fit, its residual
@@ -210,7 +217,11 @@ class DirectConfig:
     # with the manoeuvre covariance added to the prior (`_estimate`)
     retry_noise_ratio: float = 3.0  # [-] a fit whose noise scale s² exceeds this many times
     # the median of the recent fits is retried too
-    manoeuvre_W_sigma_rps: float = 1.0  # [rad/s] added std of W for the retry
+    manoeuvre_W_sigma_rps: float = 1.0  # [rad/s] added std of the yaw rate for the retry
+    manoeuvre_W_plane_sigma_rps: float = 0.2  # [rad/s] added std of the roll and pitch rates
+    # for the retry: a manoeuvre turns the car about the road normal; its body's roll and
+    # pitch rates stay those of the vibration (a few deg/s). 1.0 (as the yaw rate):
+    # merge-omni-near frame 121, a retry took a roll rate of -27 deg/s (true -1.3)
     retry_gain: float = 3.0  # [-] a retry replaces a fit that did not fail only when its
     # noise scale s² is this many times lower: a surprising fit (a truck drives into the
     # view) is often the right motion, and the retry's wide prior finds a worse one whose
@@ -319,6 +330,11 @@ KIND_DEFAULTS: dict[str, dict[str, Any]] = {
         # 0-2: 0.74 / 2.01 / 1.38 % before; with max_points 20000 and its residual marks
         # 1.33 / 1.10 / 0.96 %, without them 0.55 / 0.09 / 0.15 %)
         "first_map_residuals": False,
+        # a vehicle close behind fills the view (library merge, frames 90-106): speed 3.96 ->
+        # 1.28 %, yaw 3.98 -> 0.53 deg/s, A 0.63 -> 0.12 deg; the other 12 rectilinear
+        # drives unchanged. Omni keeps its own maps (0): merge-omni-near A 0.031 -> 0.063
+        # deg, merge-omni-far 1.07 -> 1.13 %, the other eight unchanged
+        "map_carry": 2,
         "grad_threshold": 2.0,
         "selection": "gradient",
         "select_cells": 1,
@@ -1098,6 +1114,7 @@ class DirectEstimator(EgoMotionEstimator):
         # (4, 1) fractions of a marked pixel's motion that `_smeared_marks` also marks
         self._smear_steps = np.linspace(-cfg.mask_smear, cfg.mask_smear, 5)[[0, 1, 3, 4], None]
         self._offroad: np.ndarray | None = None  # (H_m, W_m) uint8 of the previous frame
+        self._carried: tuple[np.ndarray, int] | None = None  # last usual fit's map, its age
         self._parallax_boxes: dict[tuple[int, int], Any] = {}  # `_parallax_box`
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
@@ -1331,8 +1348,24 @@ class DirectEstimator(EgoMotionEstimator):
             # only a fit at the usual noise level says what is off the road: the
             # residuals of a poorer one would keep the next pair off the road itself
             self._offroad = self._offroad_map(A, B, dt, res["noise_scale"], raised=raised)
+            self._carried = self._offroad, 0
+        if self._offroad is None and self._carried is not None:
+            self._offroad = self._carry_map(flags)
         res.pop("done_levels")
         return res
+
+    def _carry_map(self, flags: list[str]) -> np.ndarray | None:
+        """The last usual fit's off-road map for the next pair, dilated by ``map_carry_px``
+        per pair carried (flag ``map-carried``); None after ``map_carry`` pairs."""
+        m, age = self._carried
+        if age >= self.cfg.map_carry:
+            self._carried = None
+            return None
+        r = self.cfg.map_carry_px
+        m = cv2.dilate(m, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) if r > 0 else m
+        self._carried = m, age + 1
+        flags.append("map-carried")
+        return m
 
     def _unusual_noise(self, s2: float) -> bool:
         """A fit's noise scale s² more than ``retry_noise_ratio`` times the median of the
@@ -1399,7 +1432,9 @@ class DirectEstimator(EgoMotionEstimator):
         Q = np.zeros((N_STATE, N_STATE))
         Rc = self.R_car_cam
         Q[V_SLICE, V_SLICE] = Rc.T @ np.diag(np.square(cfg.manoeuvre_V_sigma_mps)) @ Rc
-        Q[W_SLICE, W_SLICE] = np.eye(3) * cfg.manoeuvre_W_sigma_rps**2
+        # car axes: roll and pitch rates (vibration), the yaw rate (the manoeuvre)
+        sig_W = np.array([cfg.manoeuvre_W_plane_sigma_rps] * 2 + [cfg.manoeuvre_W_sigma_rps])
+        Q[W_SLICE, W_SLICE] = Rc.T @ np.diag(np.square(sig_W)) @ Rc
         lever = self.mount.lever_arm_m
         if lever is not None:
             # kinematic model: a turn moves the viewpoint sideways by lever x yaw rate; the
@@ -1409,7 +1444,7 @@ class DirectEstimator(EgoMotionEstimator):
             G = np.zeros((N_STATE, 3))  # car-frame W -> state (W and the coupled V)
             G[W_SLICE, :2] = Rc.T[:, :2]
             G[:, 2] = yaw_direction(lever, Rc)
-            Q = G @ (np.eye(3) * cfg.manoeuvre_W_sigma_rps**2) @ G.T
+            Q = G @ np.diag(np.square(sig_W)) @ G.T
             Q[V_SLICE, V_SLICE] += Rc.T @ np.diag(slip) @ Rc
         return Q
 

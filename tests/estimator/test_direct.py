@@ -38,7 +38,7 @@ from estimator.direct import (
     to_gray,
     too_fast,
 )
-from estimator.homography import homography, make_state
+from estimator.homography import W_SLICE, homography, make_state
 from estimator.synthetic import RoadTexture, pixel_angle_rad, render_road, to_uint8
 from sim.camera_motion import T_world_car, Vibration, camera_pose, motion_between
 
@@ -811,6 +811,82 @@ def test_own_map_refit_is_kept_only_if_it_fits_at_least_as_well(monkeypatch, ref
     assert ("own-map" in rec.flags) == kept
     np.testing.assert_array_equal(rec.x, fits[1 if kept else 0][2])
     assert rec.noise_scale == fits[1 if kept else 0][1]
+
+
+def _sequence(preset: str, n: int, t0: float = 0.3) -> list[np.ndarray]:
+    """n uint8 frames of the synthetic drive (`_pose`) from t0, DT apart."""
+    camera, mount, angle = _camera(preset)
+    poses = [_pose(mount, t0 + k * DT) for k in range(n)]
+    tex = RoadTexture(seed=0)
+    first = poses[0].T_world_actual
+    return [
+        to_uint8(render_road(camera, p.T_world_actual, tex, pixel_angle=angle, lod_from=first))
+        for p in poses
+    ]
+
+
+def test_failed_fits_carry_the_last_usual_map(monkeypatch) -> None:
+    """A pair whose fit fails (or is unusual) makes no off-road map: the next pairs use the
+    last usual fit's map, dilated by ``map_carry_px`` per pair (flag map-carried), for
+    ``map_carry`` pairs; after them a pair without a map maps its own first frame (own-map
+    pass). Without the carry, a vehicle close behind filling the view (the fits unusual)
+    left the next pair to an own map from a fit that had followed the vehicle."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    cfg = default_config("omni", map_carry=2, manoeuvre_retry=False, yaw_jump_sigmas=0.0)
+    real = DirectEstimator._coarse_to_fine
+    passes = []  # (pair, excluded) of each pass
+
+    def poor_from_pair_2(self, A, B, dt, excluded, wide_level=None):
+        res = real(self, A, B, dt, excluded, wide_level)
+        pair = self._k - 1  # the index of frame B
+        passes.append((pair, excluded))
+        if pair >= 2:
+            res["noise_scale"] = 4.0 * cfg.max_noise_scale
+        return res
+
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", poor_from_pair_2)
+    est = DirectEstimator(camera, mount, cfg)
+    recs, maps = [], []
+    for k, img in enumerate(_sequence(preset, 6)):
+        recs.append(est.step(img, 0.3 + k * DT, SPEED * CAN_SCALE))
+        maps.append(None if est._offroad is None else est._offroad.copy())
+    assert not recs[1].degraded and maps[1] is not None and maps[1].any()
+    by_pair = {}
+    for pair, excl in passes:
+        by_pair.setdefault(pair, []).append(excl)
+    # pairs 2-4 fail: 2 and 3 pass the map on, dilated once and twice; 4 passes none
+    for pair in (2, 3, 4):
+        assert "poor-fit" in recs[pair].flags and recs[pair].degraded
+        assert ("map-carried" in recs[pair].flags) == (pair < 4)
+    r = cfg.map_carry_px
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    np.testing.assert_array_equal(maps[2], cv2.dilate(maps[1], kernel))
+    np.testing.assert_array_equal(maps[3], cv2.dilate(maps[2], kernel))
+    assert maps[4] is None
+    for pair, m in ((2, maps[1]), (3, maps[2]), (4, maps[3])):
+        excl = by_pair[pair]
+        assert len(excl) == 1  # one pass with the map: no own map
+        for got, want in zip(excl[0], est._excluded(m), strict=True):
+            np.testing.assert_array_equal(got, want)
+    counts = [int(by_pair[p][0][0].sum()) for p in (2, 3, 4)]
+    assert counts[0] < counts[1] < counts[2]  # the carried map grows
+    # pair 5 has no map: its first pass fits without one, then maps its own first frame
+    assert by_pair[5][0] is None and by_pair[5][1] is not None
+
+
+@pytest.mark.parametrize("preset", ["omni-near", "rectilinear-rear-left"])
+def test_manoeuvre_prior_widens_the_yaw_rate_not_roll_and_pitch(preset) -> None:
+    """The manoeuvre retry's added covariance: std ``manoeuvre_W_sigma_rps`` on the car's
+    yaw rate, ``manoeuvre_W_plane_sigma_rps`` on its roll and pitch rates (car axes)."""
+    camera, mount, _ = _camera(preset)
+    cfg = default_config(camera.kind)
+    Q = DirectEstimator(camera, mount, cfg)._manoeuvre_cov()
+    Rc = mount.R_car_cam
+    W_car = Rc @ Q[W_SLICE, W_SLICE] @ Rc.T
+    want = [cfg.manoeuvre_W_plane_sigma_rps] * 2 + [cfg.manoeuvre_W_sigma_rps]
+    np.testing.assert_allclose(W_car, np.diag(np.square(want)), atol=1e-12)
+    assert cfg.manoeuvre_W_plane_sigma_rps < cfg.manoeuvre_W_sigma_rps
 
 
 @pytest.mark.parametrize("refit_poor", [False, True])
