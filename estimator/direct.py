@@ -29,8 +29,11 @@ For each new frame B (previous frame A)::
     test (a plane above the road explains the pixels better: posts, rails, kerbs,
     `_parallax_marks`): the next pair, where B is A, takes no points there
     (`_offroad_map`, at full resolution for omni cameras: a post is a few pixels wide)
-    a pair without a map from the previous pair (the first pair; after a failed or
-    unusual fit) maps A from its own fit (the same tests run backward) and fits again
+    after a failed or unusual fit the last usual fit's map is carried over, dilated,
+    for ``map_carry`` pairs (flag ``map-carried``; the pinhole's setting: a vehicle
+    close behind fills the view); a pair without a map from the previous pair (the
+    first pair; after a failed or unusual fit, beyond the carry) maps A from its own
+    fit (the same tests run backward) and fits again
     without those pixels (flag ``own-map``; kept only if it fits at least as well); a
     map that leaves the finest level too few points is dropped for the pair (flag
     ``offroad-map-dropped``): a road is not textureless because of a map; a coarse
