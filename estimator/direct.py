@@ -1435,24 +1435,20 @@ class DirectEstimator(EgoMotionEstimator):
 
     def _manoeuvre_cov(self) -> np.ndarray:
         """(9, 9) covariance added to the prior for the manoeuvre retry (camera axes)."""
-        cfg = self.cfg
-        Q = np.zeros((N_STATE, N_STATE))
-        Rc = self.R_car_cam
-        Q[V_SLICE, V_SLICE] = Rc.T @ np.diag(np.square(cfg.manoeuvre_V_sigma_mps)) @ Rc
-        # car axes: roll and pitch rates (vibration), the yaw rate (the manoeuvre)
+        cfg, Rc, lever = self.cfg, self.R_car_cam, self.mount.lever_arm_m
+        # car axes: roll and pitch rates (vibration), the yaw rate (the manoeuvre); with the
+        # rear axle known (kinematic model), a turn also moves the viewpoint sideways by
+        # lever x yaw rate (`yaw_direction`) and the slip at the axle is the small part,
+        # manoeuvre_slip_sigma_mps
         sig_W = np.array([cfg.manoeuvre_W_plane_sigma_rps] * 2 + [cfg.manoeuvre_W_sigma_rps])
-        Q[W_SLICE, W_SLICE] = Rc.T @ np.diag(np.square(sig_W)) @ Rc
-        lever = self.mount.lever_arm_m
+        G = np.zeros((N_STATE, 3))  # car-frame W -> state (W and the coupled V)
+        G[W_SLICE, :2] = Rc.T[:, :2]
+        G[:, 2] = yaw_direction(lever, Rc)
+        Q = G @ np.diag(np.square(sig_W)) @ G.T
+        var_V = np.square(np.array(cfg.manoeuvre_V_sigma_mps, float))
         if lever is not None:
-            # kinematic model: a turn moves the viewpoint sideways by lever x yaw rate; the
-            # slip at the rear axle is the small part, manoeuvre_slip_sigma_mps
-            slip = np.square(np.array(cfg.manoeuvre_V_sigma_mps, float))
-            slip[1] = cfg.manoeuvre_slip_sigma_mps**2
-            G = np.zeros((N_STATE, 3))  # car-frame W -> state (W and the coupled V)
-            G[W_SLICE, :2] = Rc.T[:, :2]
-            G[:, 2] = yaw_direction(lever, Rc)
-            Q = G @ np.diag(np.square(sig_W)) @ G.T
-            Q[V_SLICE, V_SLICE] += Rc.T @ np.diag(slip) @ Rc
+            var_V[1] = cfg.manoeuvre_slip_sigma_mps**2
+        Q[V_SLICE, V_SLICE] += Rc.T @ np.diag(var_V) @ Rc
         return Q
 
     def _failure(self, res: dict[str, Any]) -> tuple[str, str] | None:
