@@ -1328,8 +1328,16 @@ class DirectEstimator(EgoMotionEstimator):
                     continue
                 ekf.set_prior(x_prior, wide_prior)
                 r = self._coarse_to_fine(A, B, dt, excl, wide_level)
-                if self._failure(r) is None and (
-                    best is None or r["noise_scale"] < best[0]["noise_scale"]
+                # its inliers are counted against the road in view under the prior (the
+                # first fit's points): a wild motion that turns most of the road out of the
+                # image "fits" the few points left (rectilinear merge, CAN x 0.999, frame
+                # 102: 140 inliers of 482 points in view, ~5000 under the prior, yaw rate
+                # -138 deg/s, then held for six frames)
+                in_view = r["n_inliers"] >= cfg.min_inlier_fraction * first[0]["n_points"]
+                if (
+                    self._failure(r) is None
+                    and in_view
+                    and (best is None or r["noise_scale"] < best[0]["noise_scale"])
                 ):
                     best = r, ekf.x.copy(), ekf.P.copy()
             better = best is not None and (

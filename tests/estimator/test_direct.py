@@ -587,6 +587,48 @@ def test_retry_replaces_a_surprising_fit_only_when_much_better(monkeypatch, gain
     assert rec.noise_scale == (2.0 if replaced else 4.0)
 
 
+@pytest.mark.parametrize("min_fraction, replaced", [(0.25, False), (0.0, True)])
+def test_retry_must_keep_the_road_in_view(monkeypatch, min_fraction, replaced):
+    """A retry's fit whose inliers are fewer than ``min_inlier_fraction`` of the first fit's
+    points (the road in view under the prior) is no fit of the road (a wild motion that
+    turns the road out of the image fits the few points left): it is not taken however low
+    its noise scale; without the rule (fraction 0) it is."""
+    preset = "omni-near"
+    camera, mount, _ = _camera(preset)
+    img_a, img_b, _ = _pair(preset)
+    real = DirectEstimator._coarse_to_fine
+    seen = []
+
+    def retry_loses_the_view(self, A, B, dt, excluded, wide_level=None):
+        res = real(self, A, B, dt, excluded, wide_level)
+        seen.append(wide_level)
+        if wide_level is None:
+            res["noise_scale"] = 4.0  # surprising: retried
+        else:  # a tenth of the points left in view, each of them fitted well
+            n = res["n_points"] // 10
+            labels = res["point_labels"][:n].copy()
+            labels[:] = INLIER
+            res.update(
+                noise_scale=0.5,
+                n_points=n,
+                n_inliers=n,
+                points_px=res["points_px"][:n],
+                point_labels=labels,
+                point_speed_info=res["point_speed_info"][:n],
+            )
+        return res
+
+    cfg = default_config("omni", min_inlier_fraction=min_fraction, yaw_jump_sigmas=0.0)
+    est = DirectEstimator(camera, mount, cfg)
+    est._s2_hist = [0.3, 0.3, 0.3]  # the usual level: 4.0 is surprising
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", retry_loses_the_view)
+    est.step(img_a, 0.3, SPEED * CAN_SCALE)
+    rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
+    assert seen[0] is None and len(seen) > 1  # the retry ran
+    assert ("manoeuvre" in rec.flags) == replaced
+    assert rec.noise_scale == (0.5 if replaced else 4.0)
+
+
 def test_rgb_and_float_frames_are_accepted() -> None:
     img_a, img_b, x_true = _pair("omni-far")
     rgb_a = np.repeat(img_a[..., None], 3, axis=2)
