@@ -629,45 +629,6 @@ def test_retry_must_keep_the_road_in_view(monkeypatch, min_fraction, replaced):
     assert rec.noise_scale == (0.5 if replaced else 4.0)
 
 
-@pytest.mark.parametrize("retry, refit_unusual", [(True, False), (False, False), (True, True)])
-def test_unusual_fit_goes_to_the_retry_not_the_yaw_refit(monkeypatch, retry, refit_unusual):
-    """Without ``yaw_refit_unusual`` the yaw-jump refit mends usual fits only: an unusual one
-    (noise scale far above the recent fits') goes straight to the manoeuvre retry, whose
-    wide search the refit's compromise would otherwise pre-empt. Without the retry, or with
-    ``yaw_refit_unusual`` (the rectilinear camera's default), the refit is offered it."""
-    preset = "omni-near"
-    camera, mount, _ = _camera(preset)
-    img_a, img_b, _ = _pair(preset)
-    real = DirectEstimator._coarse_to_fine
-    refits = []
-
-    def surprising_first(self, A, B, dt, excluded, wide_level=None):
-        res = real(self, A, B, dt, excluded, wide_level)
-        if wide_level is None:
-            res["noise_scale"] = 4.0
-        return res
-
-    def spy_refit(self, A, B, dt, excl, res, flags):
-        refits.append(res["noise_scale"])
-        return res
-
-    cfg = default_config("omni", manoeuvre_retry=retry, yaw_refit_unusual=refit_unusual)
-    est = DirectEstimator(camera, mount, cfg)
-    est._s2_hist = [0.3, 0.3, 0.3]  # the usual level: 4.0 is surprising
-    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", surprising_first)
-    monkeypatch.setattr(DirectEstimator, "_yaw_refit", spy_refit)
-    est.step(img_a, 0.3, SPEED * CAN_SCALE)
-    est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
-    offered = not retry or refit_unusual
-    assert refits == ([4.0] if offered else [])
-    # a usual fit is offered to the refit either way
-    est2 = DirectEstimator(camera, mount, cfg)
-    est2._s2_hist = [4.0, 4.0, 4.0]
-    est2.step(img_a, 0.3, SPEED * CAN_SCALE)
-    est2.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
-    assert len(refits) == (2 if offered else 1)
-
-
 def test_rgb_and_float_frames_are_accepted() -> None:
     img_a, img_b, x_true = _pair("omni-far")
     rgb_a = np.repeat(img_a[..., None], 3, axis=2)
