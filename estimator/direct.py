@@ -1341,9 +1341,9 @@ class DirectEstimator(EgoMotionEstimator):
                 r = self._coarse_to_fine(A, B, dt, excl, wide_level)
                 # its inliers are counted against the road in view under the prior (the
                 # first fit's points): a wild motion that turns most of the road out of the
-                # image "fits" the few points left (rectilinear merge, CAN x 0.999, frame
-                # 102: 140 inliers of 482 points in view, ~5000 under the prior, yaw rate
-                # -138 deg/s, then held for six frames)
+                # image "fits" the few points left (rectilinear merge with filter.A_tau_s 0.5
+                # and the CAN x 0.999, frame 102: 140 inliers of 482 points in view, ~5000
+                # under the prior, yaw rate -138 deg/s, then held for six frames)
                 in_view = r["n_inliers"] >= cfg.min_inlier_fraction * first[0]["n_points"]
                 if (
                     self._failure(r) is None

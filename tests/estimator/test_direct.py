@@ -560,29 +560,43 @@ def test_coarse_levels_fit_without_a_map_that_covers_them(coarse_without_map: bo
     assert _errors(rec, x12)[0] < 1.0
 
 
+def _surprising_pair_with_retry(monkeypatch, cfg: DirectConfig, retry_result):
+    """Record of the omni-near pair whose first fit is forced surprising (noise scale 4.0
+    against a usual 0.3) and whose retries' results retry_result(res) rewrites; asserts
+    that the retry ran."""
+    camera, mount, _ = _camera("omni-near")
+    img_a, img_b, _ = _pair("omni-near")
+    real = DirectEstimator._coarse_to_fine
+    seen = []
+
+    def fake(self, A, B, dt, excluded, wide_level=None):
+        res = real(self, A, B, dt, excluded, wide_level)
+        seen.append(wide_level)
+        if wide_level is None:
+            res["noise_scale"] = 4.0
+        else:
+            retry_result(res)
+        return res
+
+    est = DirectEstimator(camera, mount, cfg)
+    est._s2_hist = [0.3, 0.3, 0.3]  # the usual level: 4.0 is surprising
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", fake)
+    est.step(img_a, 0.3, SPEED * CAN_SCALE)
+    rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
+    assert seen[0] is None and len(seen) > 1  # the retry ran
+    return rec
+
+
 @pytest.mark.parametrize("gain, replaced", [(1.5, True), (3.0, False)])
 def test_retry_replaces_a_surprising_fit_only_when_much_better(monkeypatch, gain, replaced):
     """A fit that did not fail but whose noise scale is unusual is retried; the retry's
     fit replaces it only when its noise scale is ``retry_gain`` times lower (here 2x)."""
-    preset = "omni-near"
-    camera, mount, _ = _camera(preset)
-    img_a, img_b, _ = _pair(preset)
-    real = DirectEstimator._coarse_to_fine
-    seen = []
 
-    def surprising_first(self, A, B, dt, excluded, wide_level=None):
-        res = real(self, A, B, dt, excluded, wide_level)
-        res["noise_scale"] = 4.0 if wide_level is None else 2.0  # the retry: 2x lower
-        seen.append(wide_level)
-        return res
+    def twice_lower(res):
+        res["noise_scale"] = 2.0
 
     cfg = default_config("omni", retry_gain=gain, yaw_jump_sigmas=0.0)
-    est = DirectEstimator(camera, mount, cfg)
-    est._s2_hist = [0.3, 0.3, 0.3]  # the usual level: 4.0 is surprising
-    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", surprising_first)
-    est.step(img_a, 0.3, SPEED * CAN_SCALE)
-    rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
-    assert seen[0] is None and len(seen) > 1  # the retry ran
+    rec = _surprising_pair_with_retry(monkeypatch, cfg, twice_lower)
     assert ("manoeuvre" in rec.flags) == replaced
     assert rec.noise_scale == (2.0 if replaced else 4.0)
 
@@ -593,38 +607,22 @@ def test_retry_must_keep_the_road_in_view(monkeypatch, min_fraction, replaced):
     points (the road in view under the prior) is no fit of the road (a wild motion that
     turns the road out of the image fits the few points left): it is not taken however low
     its noise scale; without the rule (fraction 0) it is."""
-    preset = "omni-near"
-    camera, mount, _ = _camera(preset)
-    img_a, img_b, _ = _pair(preset)
-    real = DirectEstimator._coarse_to_fine
-    seen = []
 
-    def retry_loses_the_view(self, A, B, dt, excluded, wide_level=None):
-        res = real(self, A, B, dt, excluded, wide_level)
-        seen.append(wide_level)
-        if wide_level is None:
-            res["noise_scale"] = 4.0  # surprising: retried
-        else:  # a tenth of the points left in view, each of them fitted well
-            n = res["n_points"] // 10
-            labels = res["point_labels"][:n].copy()
-            labels[:] = INLIER
-            res.update(
-                noise_scale=0.5,
-                n_points=n,
-                n_inliers=n,
-                points_px=res["points_px"][:n],
-                point_labels=labels,
-                point_speed_info=res["point_speed_info"][:n],
-            )
-        return res
+    def a_tenth_in_view(res):  # each of the points left fitted well
+        n = res["n_points"] // 10
+        labels = res["point_labels"][:n].copy()
+        labels[:] = INLIER
+        res.update(
+            noise_scale=0.5,
+            n_points=n,
+            n_inliers=n,
+            points_px=res["points_px"][:n],
+            point_labels=labels,
+            point_speed_info=res["point_speed_info"][:n],
+        )
 
     cfg = default_config("omni", min_inlier_fraction=min_fraction, yaw_jump_sigmas=0.0)
-    est = DirectEstimator(camera, mount, cfg)
-    est._s2_hist = [0.3, 0.3, 0.3]  # the usual level: 4.0 is surprising
-    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", retry_loses_the_view)
-    est.step(img_a, 0.3, SPEED * CAN_SCALE)
-    rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
-    assert seen[0] is None and len(seen) > 1  # the retry ran
+    rec = _surprising_pair_with_retry(monkeypatch, cfg, a_tenth_in_view)
     assert ("manoeuvre" in rec.flags) == replaced
     assert rec.noise_scale == (0.5 if replaced else 4.0)
 
