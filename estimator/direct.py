@@ -1339,16 +1339,8 @@ class DirectEstimator(EgoMotionEstimator):
                     continue
                 ekf.set_prior(x_prior, wide_prior)
                 r = self._coarse_to_fine(A, B, dt, excl, wide_level)
-                # its inliers are counted against the road in view under the prior (the
-                # first fit's points): a wild motion that turns most of the road out of the
-                # image "fits" the few points left (rectilinear merge with filter.A_tau_s 0.5
-                # and the CAN x 0.999, frame 102: 140 inliers of 482 points in view, ~5000
-                # under the prior, yaw rate -138 deg/s, then held for six frames)
-                in_view = r["n_inliers"] >= cfg.min_inlier_fraction * first[0]["n_points"]
-                if (
-                    self._failure(r) is None
-                    and in_view
-                    and (best is None or r["noise_scale"] < best[0]["noise_scale"])
+                if self._failure(r, first[0]["n_points"]) is None and (
+                    best is None or r["noise_scale"] < best[0]["noise_scale"]
                 ):
                     best = r, ekf.x.copy(), ekf.P.copy()
             better = best is not None and (
@@ -1439,7 +1431,7 @@ class DirectEstimator(EgoMotionEstimator):
         wide = P_prior + self._yaw_cov(cfg.yaw_jump_widen * abs(shift))
         ekf.set_prior(x_prior, wide)
         r = self._coarse_to_fine(A, B, dt, excl)
-        if self._failure(r) is None:
+        if self._failure(r, res["n_points"]) is None:
             flags.append("yaw-jump")
             return r
         ekf.set_prior(x_prior, P_prior)  # (resets x̂ to the prior mean: before the fit)
@@ -1470,10 +1462,18 @@ class DirectEstimator(EgoMotionEstimator):
         Q[V_SLICE, V_SLICE] += Rc.T @ np.diag(var_V) @ Rc
         return Q
 
-    def _failure(self, res: dict[str, Any]) -> tuple[str, str] | None:
-        """(flag, reason) when the update is unusable (the prior is then kept), else None."""
+    def _failure(self, res: dict[str, Any], n_view: int = 0) -> tuple[str, str] | None:
+        """(flag, reason) when the update is unusable (the prior is then kept), else None.
+
+        n_view: for a refit or retry from a widened prior, the first fit's points (the road
+        in view under the prior); the inliers are counted against the larger of it and the
+        fit's own points. A wild motion that turns most of the road out of the image
+        "fits" the few points left (rectilinear merge with filter.A_tau_s 0.5 and the CAN
+        x 0.999, frame 102: a retry with 140 inliers of 482 points, ~5000 under the prior,
+        yaw rate -138 deg/s, then held for six frames).
+        """
         cfg = self.cfg
-        n_pts, n_in = res["n_points"], res["n_inliers"]
+        n_pts, n_in = max(res["n_points"], n_view), res["n_inliers"]
         if res["done_levels"] == 0:
             return (
                 "textureless",
@@ -1483,8 +1483,9 @@ class DirectEstimator(EgoMotionEstimator):
         if n_in < max(cfg.min_points, cfg.min_inlier_fraction * n_pts):
             return (
                 "few-inliers",
-                f"only {n_in} of {n_pts} finest-level points are inliers: "
-                "estimate unreliable, prior kept",
+                f"only {n_in} of {n_pts} finest-level points are inliers"
+                + (" (as many were in view under the prior)" if n_view > res["n_points"] else "")
+                + ": estimate unreliable, prior kept",
             )
         v_can = self._v_can
         if not math.isnan(v_can) and not self.ekf.can_consistent(v_can):

@@ -418,6 +418,43 @@ def test_yaw_jump_refit_lets_the_images_tell_a_new_turn_rate() -> None:
     assert "yaw-jump" not in rec.flags
 
 
+@pytest.mark.parametrize("min_fraction, refitted", [(0.25, False), (0.0, True)])
+def test_yaw_refit_must_keep_the_road_in_view(monkeypatch, min_fraction, refitted):
+    """The yaw-jump refit's inliers are counted against the first fit's points, as a
+    retry's are: a refit that keeps a tenth of them in view is not taken (the record is the
+    first fit); with the fraction at 0 it is."""
+    preset = "omni-near"
+    camera, mount, angle = _camera(preset)
+    img_a, img_b, _ = _turn_pair(camera, mount, angle, 10.0, 0.35, 0.3)
+    cfg = default_config(
+        "omni",
+        filter={"W0_sigma_rps": 0.025},
+        manoeuvre_retry=False,
+        own_map=False,
+        min_inlier_fraction=min_fraction,
+    )
+    _, first = _run(
+        preset, img_a, img_b, t0=0.3, can=10.0, config=replace(cfg, yaw_jump_sigmas=0.0)
+    )
+    real = DirectEstimator._coarse_to_fine
+    calls = {"n": 0}
+
+    def refit_loses_the_view(self, A, B, dt, excluded, wide_level=None):
+        res = real(self, A, B, dt, excluded, wide_level)
+        calls["n"] += 1
+        if calls["n"] == 2:  # the refit (own map and retry off)
+            n = res["n_points"] // 10
+            res.update(n_points=n, n_inliers=n, noise_scale=0.5)
+        return res
+
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", refit_loses_the_view)
+    _, rec = _run(preset, img_a, img_b, t0=0.3, can=10.0, config=cfg)
+    assert calls["n"] == 2  # the refit ran
+    assert ("yaw-jump" in rec.flags) == refitted
+    if not refitted:
+        assert np.allclose(rec.x, first.x, atol=1e-9)
+
+
 def test_failed_yaw_refit_keeps_the_first_fit(monkeypatch) -> None:
     """When the refit itself fails, the record is the first fit, not the prior."""
     preset = "omni-near"
@@ -432,9 +469,9 @@ def test_failed_yaw_refit_keeps_the_first_fit(monkeypatch) -> None:
     calls = {"n": 0}
     real = DirectEstimator._failure
 
-    def fail_the_refit(self, res):
+    def fail_the_refit(self, res, n_view=0):
         calls["n"] += 1
-        return ("poor-fit", "refit made to fail") if calls["n"] == 2 else real(self, res)
+        return ("poor-fit", "refit made to fail") if calls["n"] == 2 else real(self, res, n_view)
 
     monkeypatch.setattr(DirectEstimator, "_failure", fail_the_refit)
     _, rec = _run(preset, img_a, img_b, t0=0.3, can=10.0, config=cfg)
@@ -915,11 +952,14 @@ def test_failed_fits_carry_the_last_usual_map(monkeypatch) -> None:
     assert by_pair[5][0] is None and by_pair[5][1] is not None
 
 
+@pytest.mark.parametrize("rear_axle_x_m", [None, -2.5])
 @pytest.mark.parametrize("preset", ["omni-near", "rectilinear-rear-left"])
-def test_manoeuvre_prior_widens_the_yaw_rate_not_roll_and_pitch(preset) -> None:
+def test_manoeuvre_prior_widens_the_yaw_rate_not_roll_and_pitch(preset, rear_axle_x_m) -> None:
     """The manoeuvre retry's added covariance: std ``manoeuvre_W_sigma_rps`` on the car's
-    yaw rate, ``manoeuvre_W_plane_sigma_rps`` on its roll and pitch rates (car axes)."""
+    yaw rate, ``manoeuvre_W_plane_sigma_rps`` on its roll and pitch rates (car axes), with
+    and without a rear axle (the kinematic model then moves V with the yaw rate too)."""
     camera, mount, _ = _camera(preset)
+    mount = replace(mount, rear_axle_x_m=rear_axle_x_m)
     cfg = default_config(camera.kind)
     Q = DirectEstimator(camera, mount, cfg)._manoeuvre_cov()
     Rc = mount.R_car_cam
