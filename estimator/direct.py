@@ -407,8 +407,28 @@ def make_config(cls: type, overrides: dict[str, Any], where: str) -> Any:
             value = make_config(type(default), value, f"{where}.{key}")
         elif isinstance(default, tuple) and isinstance(value, list):
             value = tuple(value)
+        _check_type(value, default, f"{where}.{key}")
         kw[key] = value
     return cls(**kw)
+
+
+def _check_type(value: Any, default: Any, where: str) -> None:
+    """ValueError when value cannot stand for a setting whose default is ``default``: a
+    flag takes true / false, a number a number, a word a word (other settings unchecked)."""
+    if isinstance(default, bool):
+        ok = isinstance(value, bool | np.bool_)
+    elif isinstance(default, int | float):
+        ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+            value, bool | np.bool_
+        )
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    else:
+        return
+    if not ok:
+        raise ValueError(
+            f"setting {where} takes a {type(default).__name__} (default {default!r}), got {value!r}"
+        )
 
 
 # ------------------------------------------------------------------ record

@@ -171,6 +171,12 @@ def estimate(
     road_masks: Path | None = typer.Option(
         None, help="folder of road-mask PNGs, one per frame (non-zero = road)"
     ),
+    settings: list[str] = typer.Option(
+        [],
+        "--set",
+        help="estimator setting KEY=VALUE (repeatable; dotted for nested, e.g. "
+        "road_appearance=true, filter.A_tau_s=0.5; values in YAML)",
+    ),
 ) -> None:
     """Estimate ego-motion of any recording; writes OUT/egomotion.csv."""
     import numpy as np
@@ -187,6 +193,7 @@ def estimate(
     )
 
     try:
+        config = parse_settings(settings)
         cam, mount = load_camera(camera)
         can_track = read_can_csv(can)
         if timestamps is not None:
@@ -205,6 +212,7 @@ def estimate(
             estimator=estimator,
             progress=True,
             road_masks=iter_road_masks(road_masks) if road_masks is not None else None,
+            **config,
         )
         out.mkdir(parents=True, exist_ok=True)
         write_egomotion_csv(out / "egomotion.csv", run.records, mount)
@@ -213,6 +221,33 @@ def estimate(
     console.print(
         f"{len(run.records)} frames, {run.ms_per_frame:.1f} ms/frame -> {out}/egomotion.csv"
     )
+
+
+def parse_settings(pairs: list[str]) -> dict:
+    """``["a.b=1", "c=true"]`` -> ``{"a": {"b": 1}, "c": True}`` (values parsed as YAML);
+    ValueError naming the pair that is not KEY=VALUE or sets a key twice."""
+    import yaml
+
+    out: dict = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        parts = key.strip().split(".")
+        if not sep or not all(p.strip() for p in parts):
+            raise ValueError(f"--set {pair!r}: expected KEY=VALUE, e.g. road_appearance=true")
+        try:
+            value = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError as e:
+            raise ValueError(f"--set {pair!r}: value is not valid YAML ({e})") from None
+        node = out
+        for p in parts[:-1]:
+            node = node.setdefault(p.strip(), {})
+            if not isinstance(node, dict):
+                raise ValueError(f"--set {pair!r}: {p} is set to a value and a group")
+        last = parts[-1].strip()
+        if last in node:
+            raise ValueError(f"--set {pair!r}: {key.strip()} is set twice")
+        node[last] = value
+    return out
 
 
 def _one_core() -> None:

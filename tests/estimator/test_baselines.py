@@ -29,6 +29,14 @@ def test_registry_builds_each_and_names_unknown_choices() -> None:
         make_estimator("direct", camera, mount, filter={"can_sigma": 1.0})
     est = make_estimator("direct", camera, mount, max_points=500, filter={"W_walk_rps": 0.1})
     assert est.cfg.max_points == 500 and est.cfg.filter.W_walk_rps == 0.1
+    # a value of the wrong kind is named with its setting, not taken
+    with pytest.raises(ValueError, match=r"direct\.road_appearance takes a bool.*'maybe'"):
+        make_estimator("direct", camera, mount, road_appearance="maybe")
+    with pytest.raises(ValueError, match=r"direct\.filter\.A_tau_s takes a float"):
+        make_estimator("direct", camera, mount, filter={"A_tau_s": True})
+    with pytest.raises(ValueError, match=r"direct\.outliers takes a str"):
+        make_estimator("direct", camera, mount, outliers=3)
+    assert make_estimator("direct", camera, mount, max_range_m=40).cfg.max_range_m == 40
 
 
 def test_can_only_is_dead_reckoning() -> None:
