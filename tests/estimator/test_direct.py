@@ -1221,3 +1221,16 @@ def test_gaussian_blur_is_opencvs() -> None:
                 ref = cv2.GaussianBlur(img, (ksize, ksize), sigma)
                 out = gaussian_blur(img, gaussian_kernel(sigma, ksize))
                 assert out.dtype == np.float32 and out.tobytes() == ref.tobytes()
+
+
+def test_flow_noise_grows_with_the_image_motion() -> None:
+    """flow_noise_frac adds (frac x flow)² |g|² to each point's R: the same pair tells the
+    state less (larger P), and the more so the larger the fraction."""
+    img_a, img_b, _ = _pair("rectilinear-rear-left", 0)
+    traces = []
+    for frac in (0.0, 0.05, 0.5):
+        cfg = default_config("pinhole", flow_noise_frac=frac)
+        _, rec = _run("rectilinear-rear-left", img_a, img_b, config=cfg)
+        assert not rec.degraded, rec.reason
+        traces.append(np.trace(rec.P[:6, :6]))
+    assert traces[0] < traces[1] < traces[2]
