@@ -90,6 +90,7 @@ import numpy as np
 
 from estimator.camera import CameraModel
 from estimator.compensation import FrameCompensator
+from estimator.geometry import road_distance_m
 from estimator.homography import (
     A_SLICE,
     N_STATE,
@@ -653,14 +654,10 @@ def road_roi(
     in_range: the road hit is within ``max_range_m`` (horizontal distance from
     the viewpoint). Only ``seen`` has image edges at its border (body, horizon).
     """
-    K0 = mount.K0
-    kr = rays @ K0
+    kr = rays @ mount.K0
     seen = np.isfinite(kr) & (kr > 1e-6)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = 1.0 / kr  # range along the unit ray to the road [m]
-        n = K0 / np.linalg.norm(K0)
-        horiz = t * np.sqrt(np.maximum(1.0 - (rays @ n) ** 2, 0.0))
-    in_range = seen & (horiz <= max_range_m)
+    with np.errstate(invalid="ignore"):
+        in_range = seen & (road_distance_m(rays, mount.K0) <= max_range_m)
     if ego_box_m is not None:
         rays_car = rays @ mount.R_car_cam.T
         seen &= ~ego_body_hit(
@@ -1752,21 +1749,20 @@ class DirectEstimator(EgoMotionEstimator):
         n_look = min(self.cfg.road_appearance_levels, len(self.levels)) if look is not None else 0
         if n_look == 0:
             return self._dilations(offroad)
-        both = self._dilations(_union(offroad, look), n_look)
-        rest = self._dilations(offroad)
-        if rest is None:
-            rest = [np.zeros(len(level.roi_idx), bool) for level in self.levels]
-        return both + rest[n_look:]
+        both = self._dilations(_union(offroad, look), stop=n_look)
+        if offroad is None:
+            return both + [np.zeros(len(level.roi_idx), bool) for level in self.levels[n_look:]]
+        return both + self._dilations(offroad, start=n_look)
 
     def _dilations(
-        self, offroad: np.ndarray | None, n: int | None = None
+        self, offroad: np.ndarray | None, start: int = 0, stop: int | None = None
     ) -> list[np.ndarray] | None:
-        """`_excluded` of one map (H_m, W_m) at the n finest levels (None: all)."""
+        """`_excluded` of one map (H_m, W_m) at levels start..stop-1 (stop None: all)."""
         if offroad is None:
             return None
         out, mask_scale = [], self.levels[self._mask_lvl].scale
         m, done = offroad, 0  # the mask dilated by radius `done` so far
-        for level in self.levels[:n]:
+        for level in self.levels[start:stop]:
             r = math.ceil(self.cfg.mask_support_px * level.scale / mask_scale)
             if r < done:  # (radii grow with the level; else start over)
                 m, done = offroad, 0

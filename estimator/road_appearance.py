@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from estimator.geometry import road_distance_m
+
 
 @dataclass(frozen=True)
 class AppearanceConfig:
@@ -39,12 +41,10 @@ class AppearanceConfig:
 def seed_indices(rays: np.ndarray, K0: np.ndarray, share: float = 0.3) -> np.ndarray:
     """(M,) indices into rays (M, 3) of the nearest ``share`` of road-plane points.
 
-    rays: candidate rays in the camera frame (pointing at the road side, ``K0ᵀ ray > 0``);
+    rays: unit candidate rays in the camera frame (pointing at the road, ``K0ᵀ ray > 0``);
     K0: (3,) road plane (``K0ᵀ P = 1``) [1/m]. Distance is horizontal (along the plane).
     """
-    P = rays / (rays @ K0)[:, None]
-    n = K0 / np.linalg.norm(K0)
-    horizontal = np.linalg.norm(P - np.outer(P @ n, n), axis=1)
+    horizontal = road_distance_m(rays, K0)
     return np.flatnonzero(horizontal <= np.quantile(horizontal, share))
 
 

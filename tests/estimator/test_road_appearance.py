@@ -88,6 +88,7 @@ def test_no_seed_no_map() -> None:
 def test_seed_is_the_nearest_road() -> None:
     K0 = np.array([0.0, 0.5, 0.0])  # camera 2 m above the road, y down
     rays = np.array([[0.0, 1.0, z] for z in (1.0, 2.0, 5.0, 10.0, 20.0)])
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     idx = seed_indices(rays, K0, share=0.4)
     assert list(idx) == [0, 1]
 
