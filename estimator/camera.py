@@ -95,9 +95,34 @@ def _check_size(name: str, value: Any) -> int:
     return n
 
 
+def _check_vignetting(value: Any) -> float:
+    v = _check_real("vignetting", value, nonneg=True)
+    if v >= 1.0:
+        raise ValueError(
+            f"camera parameter vignetting must be in [0, 1) (the brightness lost at the "
+            f"farthest corner), got {value!r}"
+        )
+    return v
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     a.setflags(write=False)
     return a
+
+
+def vignetting_gain(
+    shape: tuple[int, int], strength: float, centre: tuple[float, float] | None = None
+) -> np.ndarray:
+    """(H, W) float32 relative illumination: 1 at the centre, ``1 - strength`` at the
+    farthest corner, quadratic in the radius (the leading term of the cos^4 law).
+
+    centre: (u, v) [px], default the image centre ``((W - 1) / 2, (H - 1) / 2)``.
+    """
+    H, W = shape
+    cu, cv = centre if centre is not None else ((W - 1) / 2, (H - 1) / 2)
+    v, u = np.mgrid[0:H, 0:W].astype(np.float32)
+    r2 = ((u - cu) ** 2 + (v - cv) ** 2) / max(cu**2 + cv**2, 1.0)
+    return (1.0 - strength * r2).astype(np.float32)
 
 
 # ------------------------------------------------------------------ base class
@@ -106,7 +131,9 @@ class CameraModel(ABC):
 
     Attributes: ``width``, ``height`` [px]; ``kind`` (``"omni"`` or
     ``"pinhole"``, the matching `CameraMount.base`); ``model`` (the name used
-    in camera files, ``"hyperbolic"`` or ``"pinhole"``).
+    in camera files, ``"hyperbolic"`` or ``"pinhole"``); ``vignetting`` [-], the
+    photometric calibration: the brightness lost at the farthest image corner
+    (`vignetting_gain`; 0: none), which the estimators divide out.
     """
 
     kind: ClassVar[str]
@@ -180,6 +207,13 @@ class CameraModel(ABC):
                 rays.reshape(self.height, self.width, 3).astype(np.float32)
             )
         return self._cache["rays"]
+
+    def vignetting_gain(self) -> np.ndarray:
+        """(height, width) float32 relative illumination of each pixel (cached, read-only)."""
+        if "vignetting" not in self._cache:
+            gain = vignetting_gain((self.height, self.width), self.vignetting)
+            self._cache["vignetting"] = _readonly(gain)
+        return self._cache["vignetting"]
 
     def valid_mask(self) -> np.ndarray:
         """(height, width) bool: pixels whose ray is valid (cached, read-only)."""
@@ -264,7 +298,8 @@ class HyperbolicCamera(CameraModel):
     below ``asin(a/c)``: the constructor checks it.
 
     Parameters: a, b [m] mirror; fu, fv [px] focal lengths; u0, v0 [px] optical
-    centre; skew [px]; width, height [px]; max_elevation_deg, body_mask_deg [deg].
+    centre; skew [px]; width, height [px]; max_elevation_deg, body_mask_deg [deg];
+    vignetting [-] (`CameraModel`).
     """
 
     kind = "omni"
@@ -281,6 +316,7 @@ class HyperbolicCamera(CameraModel):
         "height",
         "max_elevation_deg",
         "body_mask_deg",
+        "vignetting",
     )
 
     def __init__(
@@ -296,6 +332,7 @@ class HyperbolicCamera(CameraModel):
         height: int = 640,
         max_elevation_deg: float = 5.0,
         body_mask_deg: float = 75.0,
+        vignetting: float = 0.0,
     ) -> None:
         self.a = _check_real("a", a, positive=True)
         self.b = _check_real("b", b, positive=True)
@@ -308,6 +345,7 @@ class HyperbolicCamera(CameraModel):
         self.height = _check_size("height", height)
         self.max_elevation_deg = _check_real("max_elevation_deg", max_elevation_deg)
         self.body_mask_deg = _check_real("body_mask_deg", body_mask_deg, nonneg=True)
+        self.vignetting = _check_vignetting(vignetting)
         limit = float(np.degrees(np.arcsin(self.a / self.c)))
         if not -90.0 < self.max_elevation_deg < limit:
             raise ValueError(
@@ -560,12 +598,13 @@ class PinholeCamera(CameraModel):
     ``w = K [X/Z, Y/Z, 1]``, ``K = [[fu, skew, u0], [0, fv, v0], [0, 0, 1]]``.
     Valid rays have Z > 0 and land in the image.
 
-    Parameters: fu, fv [px]; u0, v0 [px]; skew [px]; width, height [px].
+    Parameters: fu, fv [px]; u0, v0 [px]; skew [px]; width, height [px]; vignetting [-]
+    (`CameraModel`).
     """
 
     kind = "pinhole"
     model = "pinhole"
-    _PARAMS = ("fu", "fv", "u0", "v0", "skew", "width", "height")
+    _PARAMS = ("fu", "fv", "u0", "v0", "skew", "width", "height", "vignetting")
 
     def __init__(
         self,
@@ -576,6 +615,7 @@ class PinholeCamera(CameraModel):
         skew: float = 0.0,
         width: int = 640,
         height: int = 480,
+        vignetting: float = 0.0,
     ) -> None:
         self.fu = _check_real("fu", fu, positive=True)
         self.fv = _check_real("fv", fv, positive=True)
@@ -584,6 +624,7 @@ class PinholeCamera(CameraModel):
         self.skew = _check_real("skew", skew)
         self.width = _check_size("width", width)
         self.height = _check_size("height", height)
+        self.vignetting = _check_vignetting(vignetting)
         self._freeze()
 
     @property

@@ -8,6 +8,8 @@ mount (`estimator.mount.CameraMount`)::
     ...
     mount: {position_m: [0, 0, 1.95], yaw_deg: 0, pitch_deg: 0, roll_deg: 0, base: omni}
     # optional in mount: rear_axle_x_m: -2.5  (the car's no-slip point, car frame [m])
+    # optional: vignetting: 0.25  (photometric calibration: the brightness lost at the
+    # farthest corner, `estimator.camera.vignetting_gain`; rendered drives record theirs)
 
 Constructor arguments left out take the constructor's defaults; ``mount`` may be
 left out (``CameraMount`` defaults) and ``mount.base`` defaults to the model's
@@ -93,6 +95,7 @@ class HyperbolicSpec(BaseModel):
     height: int = 640  # [px]
     max_elevation_deg: float = 5.0  # [deg]
     body_mask_deg: float = 75.0  # [deg]
+    vignetting: float = 0.0  # [-] brightness lost at the farthest corner (flat-field)
     mount: MountSpec | None = None
 
 
@@ -108,6 +111,7 @@ class PinholeSpec(BaseModel):
     skew: float = 0.0  # [px]
     width: int = 640  # [px]
     height: int = 480  # [px]
+    vignetting: float = 0.0  # [-] brightness lost at the farthest corner (flat-field)
     mount: MountSpec | None = None
 
 

@@ -67,6 +67,9 @@ class FilterConfig:
     A_walk_rad: float = float(np.radians(0.1))  # [rad/sqrt(s)] change of A that W does not
     # explain (road slope changes), roll/pitch
     A_tau_s: float = 1.0  # [s] correlation time of A (mean-reverting towards the mount)
+    rate_bias_tau_s: float = 0.0  # [s] the roll/pitch rates of the camera average to zero
+    # (A is bounded): the running mean of the measured ones over this time is the images'
+    # bias, left out of A's integration (`IteratedEKF.learn_rate_bias`); 0: off
     A_sigma_plane_rad: float = float(np.radians(1.0))  # [rad] prior std, roll/pitch
     A_sigma_normal_rad: float = float(np.radians(0.05))  # [rad] stationary std, yaw
     # prior of the first frame pair (before the CAN speed)
@@ -358,6 +361,7 @@ class IteratedEKF:
         self.x, self.P = initial_prior(cfg, self.R_car_cam, self.K0)
         self.B = np.eye(N_STATE)
         self.Q = np.zeros((N_STATE, N_STATE))
+        self.rate_bias = np.zeros(3)  # [rad/s] in c, about axes in the road plane
         self.set_prior(self.x, self.P)
 
     def predict(self, dt_s: float, q_scale: float = 1.0) -> None:
@@ -365,6 +369,18 @@ class IteratedEKF:
         self.B, Q = transition(dt_s, self.cfg, self.R_car_cam, self.K0)
         self.Q = Q * q_scale
         self.x, self.P = time_update(self.x, self.P, self.B, self.Q)
+        # A integrates the rates less their running mean (a known input: P unchanged)
+        self.x[A_SLICE] -= self.B[A_SLICE, W_SLICE] @ self.rate_bias
+
+    def learn_rate_bias(self, dt_s: float) -> None:
+        """After a measured pair: the roll/pitch part of W joins the running mean
+        ``rate_bias`` (time constant ``rate_bias_tau_s``), the measurement's bias."""
+        if self.cfg.rate_bias_tau_s <= 0:
+            return
+        n = self.K0 / np.linalg.norm(self.K0)
+        W = self.x[W_SLICE]
+        alpha = 1.0 - math.exp(-dt_s / self.cfg.rate_bias_tau_s)
+        self.rate_bias += alpha * (W - n * float(n @ W) - self.rate_bias)
 
     def settle_rates(self, dt_s: float) -> None:
         """No measurement over the last pair: the roll/pitch part of W (about axes in the

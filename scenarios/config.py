@@ -49,7 +49,7 @@ class SensorConfig(_Strict):
     motion_blur: bool = True  # blur by the true motion during the exposure
     exposure_s: float = Field(0.01, ge=0, le=0.2)  # [s] exposure time
     gain_drift: float = Field(0.03, ge=0, le=0.5)  # [-] std of slow exposure/gain changes
-    vignetting: float = Field(0.25, ge=0, le=1)  # [-] brightness loss at the image corner
+    vignetting: float = Field(0.25, ge=0, lt=1)  # [-] brightness loss at the image corner
     jpeg_quality: int | None = Field(90, ge=10, le=100)  # None = no compression
 
     @classmethod

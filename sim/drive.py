@@ -53,7 +53,7 @@ from sim.scene import (
     vehicle_corners_world,
     vehicles_mesh,
 )
-from sim.sensor import SensorModel, apply_sensor, gain_sequence, vignetting_gain
+from sim.sensor import SensorModel, apply_sensor, gain_sequence
 
 SKY_RGB = (0.62, 0.74, 0.90)
 
@@ -269,6 +269,9 @@ class DriveRenderer:
         road,
         face_px: int | None = None,
     ) -> None:
+        # the sensor's vignetting is the camera's photometric calibration: the camera file
+        # of the drive records it, as a real camera's flat-field calibration would
+        camera = camera.replace(vignetting=scenario.sensor.vignetting)
         self.scenario, self.camera, self.mount, self.frames = scenario, camera, mount, frames
         n = len(frames)
         rng_world = np.random.default_rng([scenario.seed, 0])
@@ -296,7 +299,7 @@ class DriveRenderer:
         self.gains = gain_sequence(
             n, self.sensor.gain_drift, np.random.default_rng([scenario.seed, 3])
         )
-        self.vignette = vignetting_gain((camera.height, camera.width), self.sensor.vignetting)
+        self.vignette = camera.vignetting_gain()
         self.road = road
         self.face_px = face_px or default_face_px(camera)
         self._renderer: OmniRenderer | None = None

@@ -87,7 +87,7 @@ from highway_env.envs.common.observation import ObservationType
 from highway_env.envs.highway_env import HighwayEnv
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from estimator.camera import CameraModel
+from estimator.camera import CameraModel, vignetting_gain
 from estimator.camera_io import resolve_camera
 from estimator.mount import CameraMount
 from scenarios.config import SensorConfig, VibrationConfig
@@ -112,7 +112,7 @@ from sim.highway import (
 )
 from sim.renderer import OmniRenderer
 from sim.scene import decode_id_image, id_occluder_mesh, vehicles_mesh
-from sim.sensor import SensorModel, apply_sensor, vignetting_gain
+from sim.sensor import SensorModel, apply_sensor
 from sim.textures import asphalt_texture, grass_texture
 
 # highway-env's "human" render mode opens a pygame window. Without a display SDL falls

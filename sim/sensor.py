@@ -24,17 +24,6 @@ class SensorModel:
     jpeg_quality: int | None = None
 
 
-def vignetting_gain(
-    shape: tuple[int, int], strength: float, centre: tuple[float, float] | None = None
-) -> np.ndarray:
-    """(H, W) float32 gain, 1 at the centre, 1 - strength at the farthest corner (cos^4-like)."""
-    H, W = shape
-    cu, cv = centre if centre is not None else ((W - 1) / 2, (H - 1) / 2)
-    v, u = np.mgrid[0:H, 0:W].astype(np.float32)
-    r2 = ((u - cu) ** 2 + (v - cv) ** 2) / max(cu**2 + cv**2, 1.0)
-    return (1.0 - strength * r2).astype(np.float32)
-
-
 def gain_sequence(n: int, drift_std: float, rng: np.random.Generator) -> np.ndarray:
     """(n,) slowly varying exposure gain around 1 (AR(1) with 2 s memory at 15 fps)."""
     g = np.ones(n)

@@ -100,6 +100,22 @@ def test_rear_axle_round_trip(tmp_path):
         replace(mount, rear_axle_x_m=float("nan"))
 
 
+@pytest.mark.parametrize("name", ["omni-near", "rectilinear-rear-left"])
+def test_vignetting_round_trip(tmp_path, name):
+    """The photometric calibration travels with the camera file; presets have none."""
+    cam, mount = load_camera(name)
+    assert cam.vignetting == 0.0 and np.all(cam.vignetting_gain() == 1.0)
+    cam = cam.replace(vignetting=0.25)
+    path = save_camera(tmp_path / "camera.yaml", cam, mount)
+    assert "vignetting: 0.25" in path.read_text()
+    assert load_camera(path) == (cam, mount)
+    gain = cam.vignetting_gain()
+    assert gain.shape == (cam.height, cam.width) and not gain.flags.writeable
+    h, w = cam.height, cam.width
+    corners = gain[[0, 0, h - 1, h - 1], [0, w - 1, 0, w - 1]]
+    assert np.allclose(corners, 0.75) and gain.max() == pytest.approx(1.0, abs=1e-5)
+
+
 def test_save_refuses_mismatched_mount(tmp_path):
     cam, _ = load_camera("omni-near")
     _, pin_mount = load_camera("rectilinear-rear-left")
@@ -195,6 +211,9 @@ def test_unknown_nested_key(tmp_path):
         ("a", -0.04, r"camera parameter a must be > 0, got -0.04"),
         ("model", "fisheye", r"key 'model': unknown camera model 'fisheye'"),
         ("max_elevation_deg", 80.0, r"max_elevation_deg must be in"),
+        ("vignetting", 1.0, r"vignetting must be in \[0, 1\).*got 1.0"),
+        ("vignetting", -0.1, r"camera parameter vignetting must be >= 0, got -0.1"),
+        ("vignetting", "0.2", r"key 'vignetting': .*valid number, got '0.2'"),
     ],
 )
 def test_bad_values_name_file_key_and_value(tmp_path, key, value, match):

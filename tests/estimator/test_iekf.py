@@ -296,3 +296,28 @@ def test_yaw_direction_is_a_car_yaw_that_keeps_the_rear_axle_straight(base: str)
     assert Rc @ g[0:3] == pytest.approx([0.0, 2.5, 0.0], abs=1e-12)
     assert float(nonholonomic_row(lever, Rc) @ g) == pytest.approx(0.0, abs=1e-12)
     assert not yaw_direction(None, Rc)[0:3].any()
+
+
+def test_a_constant_rate_bias_is_learnt_and_left_out_of_A() -> None:
+    """The images' roll/pitch rates carry a constant bias: without ``rate_bias_tau_s``
+    A settles at about A_tau_s x the bias; with it, the running mean takes the bias (not
+    the yaw rate, which is the car's) and A stays near the mount."""
+    dt = 1 / 15
+    n = MOUNT.K0 / np.linalg.norm(MOUNT.K0)
+    bias = MOUNT.R_car_cam.T @ np.radians([0.15, -0.1, 0.0])  # [rad/s] in the road plane
+    A_end = {}
+    for tau in (0.0, 2.0):
+        ekf = IteratedEKF(FilterConfig(rate_bias_tau_s=tau), MOUNT.R_car_cam, MOUNT.K0)
+        for _ in range(150):
+            ekf.predict(dt)
+            ekf.begin_update()
+            ekf.x[3:6] = bias + 0.2 * n  # what the measurement said, with a yaw rate
+            ekf.learn_rate_bias(dt)
+        A_end[tau] = np.degrees(MOUNT.R_car_cam @ ekf.x[6:])
+        if tau > 0:
+            assert np.allclose(ekf.rate_bias, bias, atol=0.01 * np.linalg.norm(bias))
+        else:
+            assert np.array_equal(ekf.rate_bias, np.zeros(3))
+    # off: A holds about A_tau_s (1 s) x the bias; on: the last 0.7 % of it
+    assert A_end[0.0][:2] == pytest.approx([0.15, -0.1], rel=0.1)
+    assert np.all(np.abs(A_end[2.0]) < 0.01)

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from estimator import fileio as io
+from estimator.camera import vignetting_gain
 from sim.can import can_at, can_messages
-from sim.sensor import SensorModel, apply_sensor, motion_blur, vignetting_gain
+from sim.sensor import SensorModel, apply_sensor, motion_blur
 
 
 def test_can_bias_noise_quantisation_and_rate():

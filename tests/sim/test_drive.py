@@ -120,6 +120,21 @@ def test_rerun_resumes_and_reproduces(drive_dir, tmp_path):
     assert json.loads((copy / "manifest.json").read_text())["complete"]
 
 
+def test_the_camera_file_records_the_sensor_vignetting(drive_dir, tmp_path):
+    """The sensor's vignetting is the drive camera's photometric calibration: its camera
+    file says it, and the frames are the unvignetted ones times `vignetting_gain`."""
+    sensor = dict(tiny().sensor.model_dump(), vignetting=0.3)
+    render_drive(tiny(sensor=sensor), tmp_path, progress=False)
+    cam, _ = load_camera(tmp_path / "camera.yaml")
+    assert cam.vignetting == 0.3 and load_camera(drive_dir / "camera.yaml")[0].vignetting == 0
+    img = read_png(tmp_path / "frames" / "000001.png").astype(np.float32)
+    plain = read_png(drive_dir / "frames" / "000001.png").astype(np.float32)
+    valid = cam.valid_mask()
+    expected = plain * cam.vignetting_gain()[..., None]
+    assert np.abs(img - expected)[valid].max() <= 1.0  # 8-bit rounding
+    assert np.abs(img - plain)[valid].max() > 10  # (the road ring is vignetted)
+
+
 def test_interrupted_render_is_not_complete_and_resumes(tmp_path, monkeypatch):
     calls = {"n": 0}
     real = drive_mod.DriveRenderer.produce
