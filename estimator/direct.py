@@ -307,6 +307,8 @@ class DirectConfig:
     saturated_level: float = 250.0  # [DN] brightness counted as saturated
     saturated_fraction: float = 0.5  # [-] saturated share of the ROI that flags a frame
     can_missing_inflation: float = 4.0  # [-] variance factor on V when the CAN speed is lost
+    flat_field: bool = False  # [-] divide the camera's vignetting (its file's photometric
+    # calibration) out of each frame; see KIND_DEFAULTS
     compensate: bool = False  # [-] return the motion-compensated previous frame
     filter: FilterConfig = field(default_factory=FilterConfig)
 
@@ -333,8 +335,19 @@ class DirectConfig:
 # a yaw rotation and a pitch offset of the camera move the image almost alike:
 # it needs every textured pixel (no NMS, low threshold) and the far road.
 KIND_DEFAULTS: dict[str, dict[str, Any]] = {
+    # the flat field (`flat_field`) measured on the 10 omni library drives (full suite,
+    # renders of 2026-12-02): speed RMSE worse on 7 of 10 by 0.02-0.15 points (highway-omni-near
+    # 0.66 -> 0.70 %, roundabout-omni-far 1.27 -> 1.42 %, merge-omni-far A 0.034 -> 0.046 deg),
+    # better on 3 by 0.02-0.04 (roundabout-omni-near A 0.035 -> 0.025 deg); the smoke suite
+    # flagged highway-omni-far at 320 px (0.26 -> 0.37 m/s). With the flat field's noise
+    # (1 / gain²) in R: worse still (roundabout-omni-near 0.83 -> 1.28 %). The omni camera
+    # sees its road in a ring about the image centre, which is the vignetting's: off
     "omni": {},
     "pinhole": {
+        # the road darkening as it crosses the image (the rectilinear camera sees it move
+        # off-centre) biased the roll rate by +0.13 deg/s and A by as much (library
+        # intersection A 0.102 -> 0.041 deg with it alone); see the README
+        "flat_field": True,
         # measured: rectilinear merge 6.2 % -> 12.7 %, intersection 10.0 -> 12.3 % with the
         # full-resolution mask (its textured road is far, its pixels fine enough at level 1)
         "mask_level": 1,
@@ -402,10 +415,10 @@ KIND_DEFAULTS: dict[str, dict[str, Any]] = {
         # amplitude) gave about the same (library A 0.061 -> 0.057 deg) but a worse
         # single cold pair (test_recovers_true_motion_from_biased_prior 0.83 -> 1.03 %)
         "filter": {"rate_bias_tau_s": 2.0, "A_tau_s": 0.5},
-        # a manoeuvre may change the speed abruptly too: highway-env's collisions halve it
-        # within a frame while the yaw rate jumps by 100+ deg/s (held-out racetrack seed 1,
-        # frame 111: 8.4 -> 4.1 m/s, 12 -> 124 deg/s; the retry's speed search reached
-        # 6.5 m/s with 0.5). Measured with it on the 13 rectilinear drives: see the README
+        # a manoeuvre may change the speed abruptly too (a collision in highway-env moves
+        # the car by its impact within a frame): held-out racetrack seed 1, frame 111, 8.4 ->
+        # 4.1 m/s and 12 -> 124 deg/s within a frame; the retry's speed search reached 6.5
+        # m/s with 0.5. Measured with it on the 13 rectilinear drives: see the README
         "manoeuvre_V_sigma_mps": (2.0, 3.0, 0.5),
     },
 }
@@ -1038,6 +1051,7 @@ class EgoMotionEstimator:
         mount: CameraMount,
         filter_cfg: FilterConfig,
         can_missing_inflation: float = 4.0,
+        flat_field: bool = False,
     ) -> None:
         if camera.kind != mount.base:
             raise ValueError(
@@ -1057,10 +1071,11 @@ class EgoMotionEstimator:
         self._v_can = math.nan  # CAN speed of the current frame pair [m/s] (NaN: missing)
         self._road_mask_new: np.ndarray | None = None  # road mask given with the frame
         self._image_new: np.ndarray | None = None  # the frame as given (colour)
-        # photometric calibration: the vignetting divided out (the road's brightness then
-        # does not change as it crosses the image; left in, it biased the rectilinear
-        # camera's roll rate by +0.13 deg/s, A by as much)
-        self._flat_field = 1.0 / camera.vignetting_gain() if camera.vignetting > 0 else None
+        # photometric calibration (``flat_field``): the camera's vignetting divided out, so
+        # that the road's brightness does not change as it crosses the image
+        self._flat_field = (
+            1.0 / camera.vignetting_gain() if flat_field and camera.vignetting > 0 else None
+        )
 
     def step(
         self,
@@ -1197,7 +1212,7 @@ class DirectEstimator(EgoMotionEstimator):
         self, camera: CameraModel, mount: CameraMount, config: DirectConfig | None = None
     ) -> None:
         cfg = config if config is not None else default_config(camera.kind)
-        super().__init__(camera, mount, cfg.filter, cfg.can_missing_inflation)
+        super().__init__(camera, mount, cfg.filter, cfg.can_missing_inflation, cfg.flat_field)
         self.cfg = cfg
         self.levels = build_levels(camera, mount, cfg)
         roi0 = np.zeros(camera.height * camera.width, bool)
