@@ -133,7 +133,8 @@ class CameraModel(ABC):
     ``"pinhole"``, the matching `CameraMount.base`); ``model`` (the name used
     in camera files, ``"hyperbolic"`` or ``"pinhole"``); ``vignetting`` [-], the
     photometric calibration: the brightness lost at the farthest image corner
-    (`vignetting_gain`; 0: none), which the estimators divide out.
+    (`vignetting_gain`; 0: none), which the direct estimator can divide out
+    (``DirectConfig.flat_field``).
     """
 
     kind: ClassVar[str]
