@@ -1364,10 +1364,11 @@ class DirectEstimator(EgoMotionEstimator):
         # eq. 15: Δz = -g_t, g_t = B(w_b) - A(w_a) (B scaled by the brightness gain)
         dz = a_i - gain * b_val
         g *= gain
-        R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * np.sum(g * g, axis=1)
+        g2 = np.sum(g * g, axis=1)
+        R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * g2
         if cfg.flow_noise_frac > 0 and w_a is not None:
             flow = np.take(w_b, idx, 0) - np.take(w_a, idx, 0)  # [level px]
-            R = R + cfg.flow_noise_frac**2 * np.sum(flow * flow, axis=1) * np.sum(g * g, axis=1)
+            R = R + cfg.flow_noise_frac**2 * np.sum(flow * flow, axis=1) * g2
         # step 3, eq. 14-16: C_i = g_i^T dw_b/dx (gradient per full-resolution pixel)
         C = constraint_rows(
             cam, np.take(rays, idx, 0), np.take(P_b, idx, 0), g / s, dh_dx(x, self.K0, dt)

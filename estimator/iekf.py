@@ -377,20 +377,22 @@ class IteratedEKF:
         ``rate_bias`` (time constant ``rate_bias_tau_s``), the measurement's bias."""
         if self.cfg.rate_bias_tau_s <= 0:
             return
+        alpha = 1.0 - math.exp(-dt_s / self.cfg.rate_bias_tau_s)
+        self.rate_bias += alpha * (self._rates_in_plane() - self.rate_bias)
+
+    def _rates_in_plane(self) -> np.ndarray:
+        """(3,) the part of W about axes in the road plane (roll and pitch rates) [rad/s]."""
         n = self.K0 / np.linalg.norm(self.K0)
         W = self.x[W_SLICE]
-        alpha = 1.0 - math.exp(-dt_s / self.cfg.rate_bias_tau_s)
-        self.rate_bias += alpha * (W - n * float(n @ W) - self.rate_bias)
+        return W - n * float(n @ W)
 
     def settle_rates(self, dt_s: float) -> None:
         """No measurement over the last pair: the roll/pitch part of W (about axes in the
         road plane) decays by ``exp(-dt / W_tau_s)``; the yaw rate is kept. Over frames
         that keep the prior, a rate left by the last fit would otherwise move A through
         every time update (``A_from_W``) and hold it at ``A_tau_s`` times that rate."""
-        n = self.K0 / np.linalg.norm(self.K0)
-        W = self.x[W_SLICE]
-        in_plane = W - n * float(n @ W)
-        self.x[W_SLICE] = W - (1.0 - math.exp(-dt_s / self.cfg.W_tau_s)) * in_plane
+        decay = 1.0 - math.exp(-dt_s / self.cfg.W_tau_s)
+        self.x[W_SLICE] = self.x[W_SLICE] - decay * self._rates_in_plane()
 
     def fuse_can(self, v_can_mps: float) -> None:
         """CAN forward speed as a measurement (`can_speed_update`)."""
