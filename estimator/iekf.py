@@ -100,6 +100,14 @@ def _A_cov(K0: np.ndarray, sig_plane: float, sig_normal: float) -> np.ndarray:
     return sig_plane**2 * (np.eye(3) - nn) + sig_normal**2 * nn
 
 
+def stationary_A_cov(cfg: FilterConfig, K0: np.ndarray) -> np.ndarray:
+    """(3, 3) stationary covariance of A's Gauss-Markov process (`transition`): in the road
+    plane ``A_walk_rad² A_tau_s / 2`` (the part W does not explain), ``A_sigma_normal_rad²``
+    about the normal."""
+    sig_plane = cfg.A_walk_rad * math.sqrt(cfg.A_tau_s / 2.0)
+    return _A_cov(K0, sig_plane, cfg.A_sigma_normal_rad)
+
+
 def initial_prior(
     cfg: FilterConfig, R_car_cam: np.ndarray, K0: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -393,6 +401,17 @@ class IteratedEKF:
         every time update (``A_from_W``) and hold it at ``A_tau_s`` times that rate."""
         decay = 1.0 - math.exp(-dt_s / self.cfg.W_tau_s)
         self.x[W_SLICE] = self.x[W_SLICE] - decay * self._rates_in_plane()
+
+    def hold_A(self) -> None:
+        """A back to the prior's mean x⁻ with the stationary covariance of its process
+        (`stationary_A_cov`), uncorrelated with V and W: the measurement's word on A is
+        dropped, its word on V and W kept."""
+        self.x[A_SLICE] = self.x_prior[A_SLICE]
+        P = self.P.copy()
+        P[A_SLICE, :] = 0.0
+        P[:, A_SLICE] = 0.0
+        P[A_SLICE, A_SLICE] = stationary_A_cov(self.cfg, self.K0)
+        self.P = P
 
     def fuse_can(self, v_can_mps: float) -> None:
         """CAN forward speed as a measurement (`can_speed_update`)."""

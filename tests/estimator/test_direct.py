@@ -39,6 +39,7 @@ from estimator.direct import (
     too_fast,
 )
 from estimator.homography import W_SLICE, homography, make_state
+from estimator.iekf import stationary_A_cov
 from estimator.synthetic import RoadTexture, pixel_angle_rad, render_road, to_uint8
 from sim.camera_motion import T_world_car, Vibration, camera_pose, motion_between
 
@@ -120,7 +121,9 @@ def _errors(rec: EgoMotionRecord, x_true: np.ndarray) -> tuple[float, np.ndarray
 )
 def test_recovers_true_motion_from_biased_prior(preset: str, seed: int) -> None:
     img_a, img_b, x_true = _pair(preset, seed)
-    _, rec = _run(preset, img_a, img_b)
+    # the fit's own A, also where the camera's default drops it (`test_first_fit_A_held`)
+    kind = _camera(preset)[0].kind
+    _, rec = _run(preset, img_a, img_b, config=default_config(kind, first_fit_A=True))
     assert not rec.degraded, rec.reason
     # the prior really was off: +8 % speed, W = A = 0
     assert abs(rec.x_prior[:3] @ x_true[:3] / (x_true[:3] @ x_true[:3]) - CAN_SCALE) < 0.02
@@ -147,6 +150,28 @@ def test_recovers_true_motion_from_biased_prior(preset: str, seed: int) -> None:
     assert len(rec.iterations) == DirectConfig().levels
 
 
+def test_first_fit_A_held() -> None:
+    """The pinhole's default (``first_fit_A`` off): the first pair's fit keeps its V and W,
+    A stays at the prior's mean with the stationary covariance of its process, uncorrelated
+    (flag ``A-held``, not degraded); the next pair's A is the fit's again."""
+    preset = "rectilinear-rear-left"
+    img_a, img_b, x_true = _pair(preset)
+    camera, mount, _ = _camera(preset)
+    kind = camera.kind
+    assert not default_config(kind).first_fit_A and default_config("omni").first_fit_A
+    _, fit = _run(preset, img_a, img_b, config=default_config(kind, first_fit_A=True))
+    est, held = _run(preset, img_a, img_b)
+    assert "A-held" in held.flags and "A-held" not in fit.flags and not held.degraded
+    assert np.array_equal(held.x[:6], fit.x[:6])  # V and W as fitted
+    assert np.array_equal(held.x[6:], held.x_prior[6:]) and not np.allclose(fit.x[6:], 0.0)
+    assert np.allclose(held.P[6:, 6:], stationary_A_cov(est.cfg.filter, mount.K0))
+    assert np.all(held.P[6:, :6] == 0)
+    # a later pair's A comes from its fit again
+    _, img_c, _ = _pair(preset, 0, 0.3 + DT)
+    nxt = est.step(img_c, 0.3 + 2 * DT, SPEED * CAN_SCALE)
+    assert "A-held" not in nxt.flags and not np.array_equal(nxt.x[6:], nxt.x_prior[6:])
+
+
 def test_flat_field_divides_the_camera_vignetting_out() -> None:
     """A vignetted pair (30 % lost at the corners) with the camera's vignetting known gives
     the clean pair's estimate; not known, the road's brightness changes as it crosses the
@@ -165,7 +190,8 @@ def test_flat_field_divides_the_camera_vignetting_out() -> None:
         ("known", vignetted, dark),
         ("unknown", camera, dark),
     ):
-        est = DirectEstimator(cam, mount)
+        # the fit's own A (the pinhole's default holds the first pair's at the mount)
+        est = DirectEstimator(cam, mount, default_config(cam.kind, first_fit_A=True))
         est.step(a, 0.3, SPEED * CAN_SCALE)
         rec = est.step(b, 0.3 + DT, SPEED * CAN_SCALE)
         errors[name] = _errors(rec, x_true)

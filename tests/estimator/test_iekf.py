@@ -19,6 +19,7 @@ from estimator.iekf import (
     initial_prior,
     reset_speed,
     robust_weights,
+    stationary_A_cov,
     time_update,
     transition,
 )
@@ -253,6 +254,43 @@ def test_filter_class_cycle() -> None:
     assert np.all(np.diag(ekf.P) <= np.diag(ekf.P_prior) + 1e-12)
     with pytest.raises(ValueError, match=r"shape \(9,\)"):
         ekf.set_prior(np.zeros(3), np.eye(3))
+
+
+def test_stationary_A_cov_is_the_limit_of_the_time_update() -> None:
+    """A's process alone (A_from_W off), iterated at a small dt until it forgets its start,
+    settles at `stationary_A_cov`: A_walk² tau / 2 in the road plane, A_sigma_normal² about
+    the normal."""
+    cfg = FilterConfig(A_from_W=False, A_tau_s=0.5)
+    dt = 1e-3
+    B, Q = transition(dt, cfg, MOUNT.R_car_cam, MOUNT.K0)
+    Pa = np.zeros((3, 3))
+    Ba, Qa = B[6:, 6:], Q[6:, 6:]
+    for _ in range(int(10 * cfg.A_tau_s / dt)):  # e^-20 of the start left
+        Pa = Ba @ Pa @ Ba.T + Qa
+    S = stationary_A_cov(cfg, MOUNT.K0)
+    assert np.allclose(Pa, S, rtol=0.01, atol=0.0)
+    n = MOUNT.K0 / np.linalg.norm(MOUNT.K0)
+    assert n @ S @ n == pytest.approx(cfg.A_sigma_normal_rad**2)
+    e = MOUNT.R_car_cam.T @ np.array([1.0, 0.0, 0.0])
+    assert e @ S @ e == pytest.approx(cfg.A_walk_rad**2 * cfg.A_tau_s / 2)
+
+
+def test_hold_A_drops_the_measurement_of_A_only() -> None:
+    """`IteratedEKF.hold_A`: A back to the prior's mean with the stationary covariance,
+    uncorrelated with V and W, whose estimate and covariance the update keeps."""
+    ekf = IteratedEKF(FilterConfig(), MOUNT.R_car_cam, MOUNT.K0)
+    ekf.predict(1 / 15)
+    ekf.begin_update()
+    rng = np.random.default_rng(5)
+    ekf.update(rng.normal(size=(80, 9)), rng.normal(size=80), np.ones(80))
+    x_fit, P_fit = ekf.x.copy(), ekf.P.copy()
+    assert not np.allclose(x_fit[6:], ekf.x_prior[6:])
+    ekf.hold_A()
+    assert np.array_equal(ekf.x[6:], ekf.x_prior[6:])
+    assert np.array_equal(ekf.x[:6], x_fit[:6]) and np.array_equal(ekf.P[:6, :6], P_fit[:6, :6])
+    assert np.all(ekf.P[6:, :6] == 0) and np.all(ekf.P[:6, 6:] == 0)
+    assert np.allclose(ekf.P[6:, 6:], stationary_A_cov(ekf.cfg, MOUNT.K0))
+    assert np.all(np.linalg.eigvalsh(ekf.P) > 0)
 
 
 def test_nonholonomic_update_ties_the_sideways_speed_to_the_yaw_rate() -> None:
