@@ -170,6 +170,12 @@ def test_first_fit_A_held() -> None:
     _, img_c, _ = _pair(preset, 0, 0.3 + DT)
     nxt = est.step(img_c, 0.3 + 2 * DT, SPEED * CAN_SCALE)
     assert "A-held" not in nxt.flags and not np.array_equal(nxt.x[6:], nxt.x_prior[6:])
+    # a first pair that measures nothing (a black frame) leaves the hold to the first fit
+    est = DirectEstimator(camera, mount)
+    est.step(np.zeros_like(img_a), 0.3 - DT, SPEED * CAN_SCALE)
+    dark = est.step(img_a, 0.3, SPEED * CAN_SCALE)
+    assert "bad-frame" in dark.flags and "A-held" not in dark.flags
+    assert "A-held" in est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE).flags
 
 
 def test_flat_field_divides_the_camera_vignetting_out() -> None:
