@@ -1262,7 +1262,6 @@ class DirectEstimator(EgoMotionEstimator):
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
-        self._fitted = False  # a pair has been fitted (``first_fit_A``)
         self._road_prev: np.ndarray | None = None  # given road mask of the previous frame
         self._offroad_given: list[np.ndarray] | None = None  # its exclusions, per level
         # the road's seed pixels at the mask level (`estimator.road_appearance`)
@@ -1519,6 +1518,7 @@ class DirectEstimator(EgoMotionEstimator):
                 ekf.set_prior(x_prior, P_prior)
                 res, ekf.x, ekf.P = first
         unusual = self._unusual_noise(res["noise_scale"])  # before this fit joins the history
+        first_fit = failure is None and not self._s2_hist  # (the history holds every good fit's)
         if failure is None:
             self._s2_hist = (self._s2_hist + [res["noise_scale"]])[-15:]
         if failure:
@@ -1532,10 +1532,9 @@ class DirectEstimator(EgoMotionEstimator):
             self._carried = self._offroad, 0
         if self._offroad is None and self._carried is not None:
             self._offroad = self._carry_map(flags)
-        if failure is None and not cfg.first_fit_A and not self._fitted:
+        if first_fit and not cfg.first_fit_A:
             ekf.hold_A()
             flags.append("A-held")
-        self._fitted = self._fitted or failure is None
         res.pop("done_levels")
         return res
 
