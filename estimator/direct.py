@@ -113,6 +113,7 @@ from estimator.iekf import (
 from estimator.motion_model import constraint_rows, map_rays, warp_jacobian
 from estimator.mount import CameraMount
 from estimator.road_appearance import offroad_by_appearance, seed_indices
+from estimator.roi_strip import RoiStrip, roi_strip, strip_blur
 
 UNUSED, INLIER, OUTLIER = 0, 1, 2  # point labels (paper Fig. 4b: black, gray, white)
 
@@ -1258,7 +1259,8 @@ class DirectEstimator(EgoMotionEstimator):
         self._smear_steps = np.linspace(-cfg.mask_smear, cfg.mask_smear, 5)[[0, 1, 3, 4], None]
         self._offroad: np.ndarray | None = None  # (H_m, W_m) uint8 of the previous frame
         self._carried: tuple[np.ndarray, int] | None = None  # last usual fit's map, its age
-        self._parallax_boxes: dict[tuple[int, int], Any] = {}  # `_parallax_box`
+        self._parallax_strips: dict[tuple[int, int], RoiStrip] = {}  # `_parallax_strip`
+        self._cell_maps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # `_cells`
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
@@ -1993,20 +1995,14 @@ class DirectEstimator(EgoMotionEstimator):
         w = self.camera.project(P.reshape(-1, 3), np.float32) / np.float32(s)
         return P, w.reshape(len(Ks), -1, 2)
 
-    def _parallax_box(self, lvl: int, reach: int) -> tuple[tuple[int, int, int, int], np.ndarray]:
-        """((row0, row1, col0, col1), (M,) flat index of each ROI candidate in it): the ROI's
-        bounding box at level lvl grown by reach (clipped to the level), where
+    def _parallax_strip(self, lvl: int, reach: int) -> RoiStrip:
+        """The level's ROI packed for blurs of that reach (`roi_strip`), where
         `_parallax_marks` blurs. Computed once per level and reach."""
         key = (lvl, reach)
-        if key not in self._parallax_boxes:
+        if key not in self._parallax_strips:
             level = self.levels[lvl]
-            hm, wm = level.shape
-            r0, r1, c0, c1 = level.box
-            box = (max(r0 - reach, 0), min(r1 + reach, hm), max(c0 - reach, 0), min(c1 + reach, wm))
-            vi, ui = np.divmod(level.roi_idx, wm)
-            box_idx = (vi - box[0]) * (box[3] - box[2]) + (ui - box[2])
-            self._parallax_boxes[key] = box, box_idx
-        return self._parallax_boxes[key]
+            self._parallax_strips[key] = roi_strip(level.roi_idx, level.shape, reach)
+        return self._parallax_strips[key]
 
     def _parallax_marks(
         self,
@@ -2053,22 +2049,17 @@ class DirectEstimator(EgoMotionEstimator):
         r2_road, w_road, b_val = np.square(r_road[smp]), np.take(w_road, smp, 0), b_val[smp]
 
         # The Gaussian window is truncated at 3 sigma (as OpenCV does for 8-bit images; 4
-        # for float ones): 0.3 % of its weight, 2/3 of the taps. The blurs run on the ROI's
-        # bounding box and a kernel's reach around it (beyond it the images are zero,
-        # `_parallax_box`): the same sums as on the whole level, ~0.7 of the work.
+        # for float ones): 0.3 % of its weight, 2/3 of the taps. The images are zero outside
+        # the ROI and read inside it: the blurs run on the ROI's pixels and a kernel's reach
+        # around them (`roi_strip`): the same sums as on the whole level, on the omni
+        # camera's ring ~0.36 of the pixels.
         half = math.ceil(3 * cfg.parallax_window_px)
-        (r0, r1, c0, c1), box_idx = self._parallax_box(lvl, half + 1)
-        bw = c1 - c0
-        at = box_idx[tex]
-        sat = at[smp]
-
+        strip = self._parallax_strip(lvl, half)
+        put, get = strip.copies[:, tex[smp]], strip.core[tex]
         window = gaussian_kernel(cfg.parallax_window_px, 2 * half + 1)
 
         def blurred(values: np.ndarray) -> np.ndarray:
-            img = np.zeros((r1 - r0) * bw, np.float32)
-            img[sat] = values
-            img = gaussian_blur(img.reshape(r1 - r0, bw), window)
-            return img.ravel()[at]
+            return strip_blur(strip, put, values, window, get)
 
         # The windowed energies are blur(r²) / blur(1) over the samples; the blur is linear,
         # so "e_l < ratio e_road" is "blur(r²_l - ratio r²_road) < 0", and the road's energy
@@ -2162,34 +2153,45 @@ class DirectEstimator(EgoMotionEstimator):
         cfg, lvl = self.cfg, self._mask_lvl
         rl = min(max(cfg.raised_level, lvl), cfg.levels - 1)
         level = self.levels[rl]
-        hm, wm = marks.shape
         hr, wr = level.shape
-        # B's textured ROI pixels, 0/1 (from the ROI's gradients: a sixth of the image)
+        cell_of, cell_px = self._cells(lvl, rl)
+        # B's textured ROI pixels (from the ROI's gradients: a sixth of the image) and the
+        # shares per cell: means over the cell's mask-level pixels
         mask_level = self.levels[lvl]
         mag, _ = roi_gradients(B, mask_level, lvl)
-        tex8 = np.zeros(hm * wm, np.uint8)
-        tex8[mask_level.roi_idx] = mag > cfg.grad_threshold
-        tex8 = tex8.reshape(hm, wm)
-        # shares per cell: the means over the cell's mask-level pixels (INTER_AREA); marks
-        # are 0/1 too, so "marks & tex" is their product
-        n_tex = cv2.resize(tex8.astype(np.float32), (wr, hr), interpolation=cv2.INTER_AREA)
-        n_mark = cv2.resize(
-            (marks & tex8).astype(np.float32), (wr, hr), interpolation=cv2.INTER_AREA
-        )
+        textured = np.flatnonzero(mag > cfg.grad_threshold)
+        idx, cell = mask_level.roi_idx[textured], cell_of[textured]
+        n_tex = np.bincount(cell, minlength=hr * wr).astype(np.float32) / cell_px
+        n_mark = np.bincount(cell, marks.ravel()[idx], hr * wr).astype(np.float32) / cell_px
         carried = np.zeros(hr * wr, np.float32)
         if raised is not None:
             P_a, w_a = self._plane_pixels(level.roi_rays32, self.K0, dt, False, float(level.scale))
             ok = _in_level(w_a, P_a, self.K0, level.shape)
             carried[level.roi_idx[ok]] = sample_points((raised,), w_a[ok])[:, 0]
-        carried = carried.reshape(hr, wr)
         seen = n_tex > 0.05  # a cell with some texture updates its average
         share = n_mark / np.maximum(n_tex, 1e-6)
         m = np.float32(cfg.raised_memory)
         ev = np.where(seen, m * carried + (1 - m) * share, carried).astype(np.float32)
-        self._raised = ev
-        cells = (ev >= cfg.raised_share).astype(np.uint8)
-        up = cv2.resize(cells, (wm, hm), interpolation=cv2.INTER_NEAREST)
-        return up & tex8
+        self._raised = ev.reshape(hr, wr)
+        out = np.zeros(marks.size, np.uint8)
+        out[idx] = ev[cell] >= cfg.raised_share
+        return out.reshape(marks.shape)
+
+    def _cells(self, lvl: int, rl: int) -> tuple[np.ndarray, np.ndarray]:
+        """(M,) flat index at level rl of the cell of each ROI pixel of level lvl (the block of
+        2^(rl - lvl) x 2^(rl - lvl) pixels above it; the last row and column of cells take
+        what a level of odd size leaves over) and (H_rl * W_rl,) float32 the number of level
+        lvl pixels of each cell. Computed once per pair of levels."""
+        key = (lvl, rl)
+        if key not in self._cell_maps:
+            (h, w), (hr, wr) = self.levels[lvl].shape, self.levels[rl].shape
+            f = 2 ** (rl - lvl)
+            rows = np.minimum(np.arange(h) // f, hr - 1)
+            cols = np.minimum(np.arange(w) // f, wr - 1)
+            cell = (rows[:, None] * wr + cols[None, :]).ravel()
+            px = np.maximum(np.bincount(cell, minlength=hr * wr), 1).astype(np.float32)
+            self._cell_maps[key] = cell[self.levels[lvl].roi_idx], px
+        return self._cell_maps[key]
 
     def _road_residuals(
         self, A: _Frame, B: _Frame, dt: float, lvl: int, backward: bool
