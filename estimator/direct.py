@@ -2115,6 +2115,7 @@ class DirectEstimator(EgoMotionEstimator):
         cfg, lvl = self.cfg, self._mask_lvl
         hm, wm = self.levels[lvl].shape
         tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, dt, lvl, backward)
+        tex_mask = tex
         noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
         if residuals:
             bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
@@ -2132,14 +2133,15 @@ class DirectEstimator(EgoMotionEstimator):
             if plvl != lvl:
                 marks = cv2.resize(marks, (wm, hm), interpolation=cv2.INTER_NEAREST)
             if cfg.raised_memory > 0 and not backward:
-                marks |= self._raised_cells(B, dt, marks, raised)
+                marks |= self._raised_cells(tex_mask, dt, marks, raised)
             out |= marks
         return out
 
     def _raised_cells(
-        self, B: _Frame, dt: float, marks: np.ndarray, raised: np.ndarray | None
+        self, tex: np.ndarray, dt: float, marks: np.ndarray, raised: np.ndarray | None
     ) -> np.ndarray:
-        """(H_m, W_m) uint8: B's textured pixels in cells of level ``raised_level`` that the
+        """(H_m, W_m) uint8: B's textured pixels (tex (N,): indices into the mask level's ROI,
+        from `_road_residuals`) in cells of level ``raised_level`` that the
         plane-parallax test has marked in at least ``raised_share`` of their textured pixels,
         on average over the recent frames; stores B's evidence (H_r, W_r) float32 for the
         next pair.
@@ -2155,12 +2157,8 @@ class DirectEstimator(EgoMotionEstimator):
         level = self.levels[rl]
         hr, wr = level.shape
         cell_of, cell_px = self._cells(lvl, rl)
-        # B's textured ROI pixels (from the ROI's gradients: a sixth of the image) and the
-        # shares per cell: means over the cell's mask-level pixels
-        mask_level = self.levels[lvl]
-        mag, _ = roi_gradients(B, mask_level, lvl)
-        textured = np.flatnonzero(mag > cfg.grad_threshold)
-        idx, cell = mask_level.roi_idx[textured], cell_of[textured]
+        # the shares per cell: means over the cell's mask-level pixels
+        idx, cell = self.levels[lvl].roi_idx[tex], cell_of[tex]
         n_tex = np.bincount(cell, minlength=hr * wr).astype(np.float32) / cell_px
         n_mark = np.bincount(cell, marks.ravel()[idx], hr * wr).astype(np.float32) / cell_px
         carried = np.zeros(hr * wr, np.float32)
@@ -2228,7 +2226,7 @@ class DirectEstimator(EgoMotionEstimator):
         if self.cfg.mask_smear > 0 and len(idx):
             vb, ub = np.divmod(idx, wm)
             t = self._smear_steps
-            u = np.rint(ub + t * (ub - w_a[:, 0])).astype(np.intp)  # (4, M): t = 0 is idx
+            u = np.rint(ub + t * (ub - w_a[:, 0])).astype(np.intp)  # (4, M); t = 0 is idx itself
             v = np.rint(vb + t * (vb - w_a[:, 1])).astype(np.intp)
             inb = (u >= 0) & (u < wm) & (v >= 0) & (v < hm)
             out[v[inb] * wm + u[inb]] = 1
