@@ -929,7 +929,7 @@ def _in_level(w: np.ndarray, P: np.ndarray, K0: np.ndarray, shape: tuple[int, in
     hl, wl = shape
     u, v = w[:, 0], w[:, 1]
     ok = (P @ np.asarray(K0, P.dtype) > 0) & (u >= 0) & (u <= wl - 1) & (v >= 0) & (v <= hl - 1)
-    w[~ok] = -1.0
+    w[np.flatnonzero(~ok)] = -1.0  # (by index: a boolean mask is read in full, ~3x slower)
     return ok
 
 
@@ -2160,7 +2160,8 @@ class DirectEstimator(EgoMotionEstimator):
         # the shares per cell: means over the cell's mask-level pixels
         idx, cell = self.levels[lvl].roi_idx[tex], cell_of[tex]
         n_tex = np.bincount(cell, minlength=hr * wr).astype(np.float32) / cell_px
-        n_mark = np.bincount(cell, marks.ravel()[idx], hr * wr).astype(np.float32) / cell_px
+        marked = cell[marks.ravel()[idx].view(bool)]  # marks are 0 / 1
+        n_mark = np.bincount(marked, minlength=hr * wr).astype(np.float32) / cell_px
         carried = np.zeros(hr * wr, np.float32)
         if raised is not None:
             P_a, w_a = self._plane_pixels(level.roi_rays32, self.K0, dt, False, float(level.scale))
@@ -2172,7 +2173,7 @@ class DirectEstimator(EgoMotionEstimator):
         ev = np.where(seen, m * carried + (1 - m) * share, carried).astype(np.float32)
         self._raised = ev.reshape(hr, wr)
         out = np.zeros(marks.size, np.uint8)
-        out[idx] = ev[cell] >= cfg.raised_share
+        out[idx[(ev >= cfg.raised_share)[cell]]] = 1
         return out.reshape(marks.shape)
 
     def _cells(self, lvl: int, rl: int) -> tuple[np.ndarray, np.ndarray]:
