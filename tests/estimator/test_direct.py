@@ -27,6 +27,7 @@ from estimator.direct import (
     DirectEstimator,
     EgoMotionRecord,
     _column_scale,
+    _composed,
     default_config,
     fast_median,
     fast_percentile,
@@ -885,6 +886,84 @@ def test_parallax_marks_a_plane_above_the_road(parallax_level) -> None:
     # 0.016 without the test (0.03
     # more was the bound before 1.08 joined the hypotheses) -- one reason the option is
     # not the default
+
+
+def _slow_raised_frames(n: int, speed: float, box, height_m: float):
+    """n frames of a straight drive at speed [m/s] (omni-near, vibrating) where the pixels of
+    box (u0, v0, w, h) see a textured plane height_m above the road (a kerb's top)."""
+    camera, mount, angle = _camera("omni-near")
+    tex, tex_top = RoadTexture(seed=0), RoadTexture(seed=5)
+    vib = Vibration(0.3, 2.0, 0.4, 1.3)
+    lower = np.eye(4)
+    lower[2, 3] = -height_m
+    poses = [
+        camera_pose(T_world_car(speed * k * DT, 0.0, 0.0), mount, vib, k * DT) for k in range(n)
+    ]
+    u0, v0, w, h = box
+    frames = []
+    for p in poses:
+        T = p.T_world_actual
+        img = render_road(camera, T, tex, pixel_angle=angle, lod_from=poses[0].T_world_actual)
+        top = render_road(
+            camera, lower @ T, tex_top, pixel_angle=angle, lod_from=lower @ poses[0].T_world_actual
+        )
+        img[v0 : v0 + h, u0 : u0 + w] = top[v0 : v0 + h, u0 : u0 + w]
+        frames.append(to_uint8(img))
+    return frames
+
+
+def test_composed_homography_of_translations_along_the_road() -> None:
+    """Plane-induced homographies of one plane compose: two pairs moving along the road
+    (no rotation, A = 0) give the homography of their summed travel."""
+    _, mount, _ = _camera("omni-near")
+    R = mount.R_car_cam.T  # car -> camera
+    x1 = make_state(R @ [12.0, 0.4, 0.0], np.zeros(3), np.zeros(3))
+    x2 = make_state(R @ [7.0, -0.2, 0.0], np.zeros(3), np.zeros(3))
+    both = make_state(
+        R @ [(12.0 * 0.05 + 7.0 * 0.1) / 0.15, (0.4 * 0.05 - 0.2 * 0.1) / 0.15, 0.0],
+        np.zeros(3),
+        np.zeros(3),
+    )
+    H = _composed([(x1, 0.05), (x2, 0.1)], 1.3 * mount.K0)
+    np.testing.assert_allclose(H, homography(both, 1.3 * mount.K0, 0.15), atol=1e-12)
+
+
+def test_parallax_baseline_marks_a_kerb_seen_slowly() -> None:
+    """At 2 m/s a kerb's top (0.15 m: lambda 1.08) moves under 0.25 px farther than the road
+    over one pair, and the plane-parallax test cannot see it; over 0.5 m of travel
+    (``parallax_baseline_m``, four pairs composed) it marks it. Faster than the baseline
+    per pair, the option changes nothing."""
+    camera, mount, _ = _camera("omni-near")
+    box = (60, 240, 70, 160)  # left of the car, in the road ring
+    frames = _slow_raised_frames(7, 2.0, box, 0.15)
+
+    def run(baseline_m: float) -> tuple[DirectEstimator, float, float]:
+        est = DirectEstimator(camera, mount, default_config("omni", parallax_baseline_m=baseline_m))
+        for k, img in enumerate(frames):
+            est.step(img, k * DT, 2.0 * CAN_SCALE)
+        m = est._offroad.astype(bool)
+        inside = np.zeros_like(m)
+        u0, v0, w, h = box
+        inside[v0 + 2 : v0 + h - 2, u0 + 2 : u0 + w - 2] = True
+        roi = np.zeros(m.size, bool)
+        roi[est.levels[est._mask_lvl].roi_idx] = True
+        roi = roi.reshape(m.shape)
+        near = cv2.dilate(inside.astype(np.uint8), np.ones((17, 17), np.uint8)) > 0
+        return est, m[inside & roi].mean(), m[roi & ~near].mean()
+
+    est, kerb_with, road_with = run(0.5)
+    _, kerb_without, road_without = run(0.0)
+    print(f"kerb marked {kerb_with:.2f} (one pair {kerb_without:.2f})")
+    print(f"road marked {road_with:.3f} (one pair {road_without:.3f})")
+    assert len(est._chain) == est.cfg.parallax_baseline_frames - 1  # 5 pairs kept
+    A = est._chain[-1][1]
+    older, motion, _ = est._parallax_baseline(A, DT)
+    assert len(motion) == 4 and older is est._chain[-3][0]  # 4 x 0.133 m >= 0.5 m
+    assert kerb_with > kerb_without + 0.2
+    assert road_with < road_without + 0.03
+    # a pair that travels the baseline by itself: the test's own pair
+    est.ekf.x[:3] *= 10
+    assert est._parallax_baseline(A, DT)[1] is None
 
 
 def test_given_road_mask_lets_raised_points_tell_the_rotation_only() -> None:
