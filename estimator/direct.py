@@ -944,9 +944,12 @@ def sample_points(images: tuple[np.ndarray, ...], w_level: np.ndarray) -> np.nda
         return out
     cols = 4096  # cv2.remap maps must be smaller than 32767 in each dimension
     rows = -(-n // cols)
-    m = np.zeros((rows * cols, 2), np.float32)
-    m[:n] = w_level
-    m = m.reshape(rows, cols, 2) if rows > 1 else m[:n].reshape(1, n, 2)
+    if rows > 1:
+        m = np.zeros((rows * cols, 2), np.float32)
+        m[:n] = w_level
+        m = m.reshape(rows, cols, 2)
+    else:
+        m = np.ascontiguousarray(w_level, np.float32).reshape(1, n, 2)
     for c, img in enumerate(images):
         out[:, c] = cv2.remap(
             img, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
