@@ -200,7 +200,7 @@ class DirectConfig:
     # 1.27 / 1.62 -> 1.30 / 1.71 %, held-out racetrack s1 1.02 -> 1.09; drives faster than
     # 7.5 m/s unchanged. 1.0: the roundabouts' composed turns misalign (far 1.27 -> 2.49 %)
     parallax_baseline_frames: int = 6  # [-] most frame pairs the baseline spans (4 / 10:
-    # summed 17.77 / 17.71 %)
+    # summed 17.77 / 17.71 %); their frames are kept (pyramids, ~10 MB each at 640 px)
     parallax_ratio: float = 0.7  # [-] a pixel is off-road when some lambda leaves less than
     # this fraction of the road's windowed residual energy
     parallax_window_px: float = 1.5  # [px at the mask level] Gaussian window of the energies
@@ -347,6 +347,14 @@ class DirectConfig:
         if self.selection not in ("information", "gradient"):
             raise ValueError(
                 f"direct.selection must be 'information' or 'gradient', got {self.selection!r}"
+            )
+        if not (math.isfinite(self.parallax_baseline_m) and self.parallax_baseline_m >= 0):
+            raise ValueError(
+                f"direct.parallax_baseline_m must be >= 0 [m], got {self.parallax_baseline_m!r}"
+            )
+        if self.parallax_baseline_frames < 1:
+            raise ValueError(
+                f"direct.parallax_baseline_frames must be >= 1, got {self.parallax_baseline_frames}"
             )
         if self.outliers not in ("snooping", "huber", "tukey", "none"):
             raise ValueError(
@@ -754,8 +762,7 @@ class _Level:
     forward, W = A = 0) per unit dt (V, W columns) and per metre of travel (A columns),
     for ranking candidates (`select_points`); to_mask: (M,) flat index of each candidate
     in the off-road mask grid (set by `DirectEstimator`); roi_rays32: roi_rays in float32
-    (the dense off-road map); box: (row0, row1, col0, col1) the ROI's bounding box (end
-    exclusive).
+    (the dense off-road map).
     """
 
     scale: int
@@ -767,16 +774,9 @@ class _Level:
     sel_J: np.ndarray
     to_mask: np.ndarray | None = None
     roi_rays32: np.ndarray = field(init=False)
-    box: tuple[int, int, int, int] = field(init=False)
 
     def __post_init__(self) -> None:
         self.roi_rays32 = self.roi_rays.astype(np.float32)
-        rows, cols = np.divmod(self.roi_idx, self.shape[1])
-        self.box = (
-            (0, 0, 0, 0)
-            if len(rows) == 0
-            else (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
-        )
 
 
 _Motion = list[tuple[np.ndarray, float]]  # frame pairs (x (9,), dt [s]), oldest first

@@ -755,6 +755,10 @@ def test_config_errors_name_the_key() -> None:
         default_config("omni", levels=3)
     with pytest.raises(ValueError, match="unknown camera kind 'fisheye'"):
         default_config("fisheye")
+    with pytest.raises(ValueError, match=r"direct\.parallax_baseline_m must be >= 0"):
+        default_config("omni", parallax_baseline_m=float("nan"))
+    with pytest.raises(ValueError, match=r"direct\.parallax_baseline_frames"):
+        default_config("omni", parallax_baseline_frames=0)
 
 
 def test_bench_smoke() -> None:
