@@ -200,7 +200,7 @@ class DirectConfig:
     # 1.27 / 1.62 -> 1.30 / 1.71 %, held-out racetrack s1 1.02 -> 1.09; drives faster than
     # 7.5 m/s unchanged. 1.0: the roundabouts' composed turns misalign (far 1.27 -> 2.49 %)
     parallax_baseline_frames: int = 6  # [-] most frame pairs the baseline spans (4 / 10:
-    # summed 17.77 / 17.71 %); their frames are kept (pyramids, ~10 MB each at 640 px)
+    # summed 17.77 / 17.71 %); their frames' images at the parallax level are kept
     parallax_ratio: float = 0.7  # [-] a pixel is off-road when some lambda leaves less than
     # this fraction of the road's windowed residual energy
     parallax_window_px: float = 1.5  # [px at the mask level] Gaussian window of the energies
@@ -875,7 +875,7 @@ class _Frame:
     roi: `roi_gradients` of the levels read so far."""
 
     t_s: float
-    stacks: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+    stacks: list[tuple[np.ndarray, ...]]  # (I, dI/du, dI/dv); (I,) or () in a `_slim` frame
     mags: list[np.ndarray]
     local_max: list[np.ndarray | None]
     gray: np.ndarray
@@ -1296,9 +1296,9 @@ class DirectEstimator(EgoMotionEstimator):
         self._carried: tuple[np.ndarray, int] | None = None  # last usual fit's map, its age
         self._parallax_strips: dict[tuple[int, int], RoiStrip] = {}  # `_parallax_strip`
         self._cell_maps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # `_cells`
-        # the last well-fitted consecutive pairs (first frame, second frame, x, dt, gain),
-        # oldest first: the longer baseline of `_parallax_baseline`
-        self._chain: list[tuple[_Frame, _Frame, np.ndarray, float, float]] = []
+        # the last well-fitted consecutive pairs (first frame (`_slim`), second frame (the
+        # last pair's only), x, dt, gain), oldest first: the baseline of `_parallax_baseline`
+        self._chain: list[tuple[_Frame, _Frame | None, np.ndarray, float, float]] = []
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
@@ -1573,7 +1573,10 @@ class DirectEstimator(EgoMotionEstimator):
         if failure is None and cfg.parallax_baseline_m > 0:
             keep = max(cfg.parallax_baseline_frames - 1, 0)
             chain = self._chain if self._chain and self._chain[-1][1] is A else []
-            self._chain = (chain + [(A, B, ekf.x.copy(), dt, self._gain)])[-keep:] if keep else []
+            # only the last pair's second frame (the next pair's first) is kept whole
+            chain = [(a, None, x, d, g) for a, _, x, d, g in chain]
+            entry = (self._slim(A), B, ekf.x.copy(), dt, self._gain)
+            self._chain = (chain + [entry])[-keep:] if keep else []
         elif failure is not None:
             self._chain = []
         if self._offroad is None and self._carried is not None:
@@ -2187,7 +2190,7 @@ class DirectEstimator(EgoMotionEstimator):
         else:
             out = np.zeros((hm, wm), np.uint8)
         if cfg.parallax_lambdas:
-            plvl = lvl if cfg.parallax_level is None else min(cfg.parallax_level, cfg.levels - 1)
+            plvl = self._parallax_lvl()
             A_p, motion, gain = (A, None, None) if backward else self._parallax_baseline(A, dt)
             if plvl != lvl or motion is not None:
                 # the windowed test at a coarser level (cheaper), marks upsampled; or against
@@ -2208,6 +2211,22 @@ class DirectEstimator(EgoMotionEstimator):
                 marks |= self._raised_cells(tex_mask, dt, marks, raised)
             out |= marks
         return out
+
+    def _slim(self, frame: _Frame) -> _Frame:
+        """The frame with only what the plane-parallax test reads of an older frame: its image
+        at the parallax level (~1.6 MB at 640 px instead of the pyramid's ~10 MB)."""
+        plvl = self._parallax_lvl()
+        stacks = [st[:1] if lvl == plvl else () for lvl, st in enumerate(frame.stacks)]
+        return _Frame(frame.t_s, stacks, [], [], np.empty(0, np.uint8), frame.reason)
+
+    def _parallax_lvl(self) -> int:
+        """Pyramid level of the plane-parallax test (``parallax_level``; None: the mask's)."""
+        cfg = self.cfg
+        return (
+            self._mask_lvl
+            if cfg.parallax_level is None
+            else min(cfg.parallax_level, cfg.levels - 1)
+        )
 
     def _parallax_baseline(
         self, A: _Frame, dt: float
