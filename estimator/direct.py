@@ -783,10 +783,12 @@ _Motion = list[tuple[np.ndarray, float]]  # frame pairs (x (9,), dt [s]), oldest
 
 
 def _composed(motion: _Motion, K: np.ndarray) -> np.ndarray:
-    """(3, 3) homography of the plane K over consecutive pairs: each pair's eq. 3, the
-    latest applied last (plane-induced homographies of one plane compose)."""
-    H = np.eye(3)
-    for x, dt in motion:
+    """(3, 3) homography of the plane K over consecutive pairs (at least one): each pair's
+    eq. 3, the latest applied last (plane-induced homographies of one plane compose); one
+    pair's is its own."""
+    x0, dt0 = motion[0]
+    H = homography(x0, K, dt0)
+    for x, dt in motion[1:]:
         H = homography(x, K, dt) @ H
     return H
 
@@ -1296,9 +1298,10 @@ class DirectEstimator(EgoMotionEstimator):
         self._carried: tuple[np.ndarray, int] | None = None  # last usual fit's map, its age
         self._parallax_strips: dict[tuple[int, int], RoiStrip] = {}  # `_parallax_strip`
         self._cell_maps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # `_cells`
-        # the last well-fitted consecutive pairs (first frame (`_slim`), second frame (the
-        # last pair's only), x, dt, gain), oldest first: the baseline of `_parallax_baseline`
-        self._chain: list[tuple[_Frame, _Frame | None, np.ndarray, float, float]] = []
+        # the last well-fitted consecutive pairs (first frame (`_slim`), x, dt, gain), oldest
+        # first, and the last one's second frame: the baseline of `_parallax_baseline`
+        self._chain: list[tuple[_Frame, np.ndarray, float, float]] = []
+        self._chain_end: _Frame | None = None
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
@@ -1571,14 +1574,12 @@ class DirectEstimator(EgoMotionEstimator):
             self._offroad = self._offroad_map(A, B, dt, res["noise_scale"], raised=raised)
             self._carried = self._offroad, 0
         if failure is None and cfg.parallax_baseline_m > 0:
-            keep = max(cfg.parallax_baseline_frames - 1, 0)
-            chain = self._chain if self._chain and self._chain[-1][1] is A else []
-            # only the last pair's second frame (the next pair's first) is kept whole
-            chain = [(a, None, x, d, g) for a, _, x, d, g in chain]
-            entry = (self._slim(A), B, ekf.x.copy(), dt, self._gain)
-            self._chain = (chain + [entry])[-keep:] if keep else []
+            keep = cfg.parallax_baseline_frames - 1
+            entry = (self._slim(A), ekf.x.copy(), dt, self._gain)
+            self._chain = (self._chain_to(A) + [entry])[-keep:] if keep else []
+            self._chain_end = B
         elif failure is not None:
-            self._chain = []
+            self._chain, self._chain_end = [], None
         if self._offroad is None and self._carried is not None:
             self._offroad = self._carry_map(flags)
         if first_fit and not cfg.first_fit_A:
@@ -2020,40 +2021,29 @@ class DirectEstimator(EgoMotionEstimator):
         return ((b_val - a_val) ** 2 <= thr) & ((b_val - a_moved) ** 2 > 4.0 * thr)
 
     def _plane_pixels(
-        self,
-        rays32: np.ndarray,
-        K: np.ndarray,
-        dt: float,
-        backward: bool,
-        s: float,
-        motion: _Motion | None = None,
+        self, rays32: np.ndarray, K: np.ndarray, motion: _Motion, backward: bool, s: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Where the plane K under x̂ puts rays32 (N, 3) float32 of the frame being marked in
-        the other frame of the pair (H⁻¹: second frame to first; H when ``backward``): P
-        (N, 3) and its level pixels (N, 2), in float32 (the dense off-road map: ~5x faster
-        projections, ~1e-4 px)."""
-        P, w = self._planes_pixels(rays32, [K], dt, backward, s, motion)
+        """Where the plane K under the motion (frame pairs (x, dt), oldest first: the pair's
+        own ``[(x̂, dt)]``, or those from an older frame, `_parallax_baseline`) puts rays32
+        (N, 3) float32 of the frame being marked in the other frame (H⁻¹: second frame to
+        first; H when ``backward``): P (N, 3) and its level pixels (N, 2), in float32 (the
+        dense off-road map: ~5x faster projections, ~1e-4 px)."""
+        P, w = self._planes_pixels(rays32, [K], motion, backward, s)
         return P[0], w[0]
 
     def _planes_pixels(
         self,
         rays32: np.ndarray,
         Ks: list[np.ndarray],
-        dt: float,
+        motion: _Motion,
         backward: bool,
         s: float,
-        motion: _Motion | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """`_plane_pixels` for several planes Ks at once: P (L, N, 3) and level pixels (L, N,
-        2). The same values: the homographies one by one, their inverses, products and the
-        projection batched (numpy runs the same LAPACK / BLAS call per plane; the
-        projection is row by row). motion: the pairs ((x, dt) oldest first) from an older
-        frame to B (`_parallax_baseline`), their homographies composed per plane; None: x̂
-        over dt."""
-        if motion is None:
-            Hs = np.stack([homography(self.ekf.x, K, dt) for K in Ks])
-        else:
-            Hs = np.stack([_composed(motion, K) for K in Ks])
+        2). The same values: the homographies one by one (`_composed`), their inverses,
+        products and the projection batched (numpy runs the same LAPACK / BLAS call per
+        plane; the projection is row by row)."""
+        Hs = np.stack([_composed(motion, K) for K in Ks])
         Ms = Hs if backward else np.linalg.inv(Hs)
         P = np.asarray(rays32, np.float32) @ np.ascontiguousarray(Ms.transpose(0, 2, 1), np.float32)
         w = self.camera.project(P.reshape(-1, 3), np.float32) / np.float32(s)
@@ -2072,7 +2062,7 @@ class DirectEstimator(EgoMotionEstimator):
         self,
         A: _Frame,
         B: _Frame,
-        dt: float,
+        motion: _Motion,
         lvl: int,
         tex: np.ndarray,
         idx: np.ndarray,
@@ -2082,7 +2072,6 @@ class DirectEstimator(EgoMotionEstimator):
         ok: np.ndarray,
         noise: float,
         backward: bool = False,
-        motion: _Motion | None = None,
         gain: float | None = None,
     ) -> np.ndarray:
         """(len(tex),) bool: textured pixels of B that a plane above the road explains better.
@@ -2138,7 +2127,7 @@ class DirectEstimator(EgoMotionEstimator):
         # every hypothesis's warp and samples at once: (L, n) per plane lambda
         n_lam = len(cfg.parallax_lambdas)
         Ks = [lam * self.K0 for lam in cfg.parallax_lambdas]
-        P_l, w_l = self._planes_pixels(rays, Ks, dt, backward, s, motion)
+        P_l, w_l = self._planes_pixels(rays, Ks, motion, backward, s)
         apart = np.sum(np.square(w_l - w_road), axis=2) > cfg.parallax_min_px**2
         use = _in_level(w_l.reshape(-1, 2), P_l.reshape(-1, 3), self.K0, level.shape)
         use = use.reshape(n_lam, -1) & apart
@@ -2181,7 +2170,8 @@ class DirectEstimator(EgoMotionEstimator):
         """
         cfg, lvl = self.cfg, self._mask_lvl
         hm, wm = self.levels[lvl].shape
-        tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, dt, lvl, backward)
+        pair = [(self.ekf.x, dt)]
+        tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, pair, lvl, backward)
         tex_mask = tex
         noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
         if residuals:
@@ -2191,18 +2181,18 @@ class DirectEstimator(EgoMotionEstimator):
             out = np.zeros((hm, wm), np.uint8)
         if cfg.parallax_lambdas:
             plvl = self._parallax_lvl()
-            A_p, motion, gain = (A, None, None) if backward else self._parallax_baseline(A, dt)
-            if plvl != lvl or motion is not None:
+            A_p, motion, gain = (A, pair, None) if backward else self._parallax_baseline(A, dt)
+            if plvl != lvl or A_p is not A:
                 # the windowed test at a coarser level (cheaper), marks upsampled; or against
                 # an older frame: the same pixels (tex), their smear from the pair's motion
                 w_pair = w_a
                 tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(
-                    A_p, B, dt, plvl, backward, motion, gain
+                    A_p, B, motion, plvl, backward, gain
                 )
                 if plvl == lvl:
                     w_a = w_pair
             par = self._parallax_marks(
-                A_p, B, dt, plvl, tex, idx, w_a, b_val, r_road, ok, noise, backward, motion, gain
+                A_p, B, motion, plvl, tex, idx, w_a, b_val, r_road, ok, noise, backward, gain
             )
             marks = self._smeared_marks(idx[par], w_a[par], self.levels[plvl].shape)
             if plvl != lvl:
@@ -2228,25 +2218,27 @@ class DirectEstimator(EgoMotionEstimator):
             else min(cfg.parallax_level, cfg.levels - 1)
         )
 
-    def _parallax_baseline(
-        self, A: _Frame, dt: float
-    ) -> tuple[_Frame, _Motion | None, float | None]:
-        """(frame, motion, gain) of the plane-parallax test of the pair (A, B): A itself
-        (None, None) unless the pair travels less than ``parallax_baseline_m``; then the
-        frame of the fewest earlier well-fitted consecutive pairs (``_chain``) that reach
-        it, or all of them: the pairs' (x, dt) oldest first, this pair's x̂ last, and the
-        product of their brightness gains."""
+    def _chain_to(self, A: _Frame) -> list[tuple[_Frame, np.ndarray, float, float]]:
+        """``_chain`` if its last pair ends at frame A (the pairs are consecutive), else []."""
+        return self._chain if self._chain_end is A else []
+
+    def _parallax_baseline(self, A: _Frame, dt: float) -> tuple[_Frame, _Motion, float | None]:
+        """(frame, motion, gain) of the plane-parallax test of the pair (A, B): A itself, the
+        pair's ``[(x̂, dt)]`` and None (the pair's gain) unless the pair travels less than
+        ``parallax_baseline_m``; then the frame of the fewest earlier well-fitted
+        consecutive pairs (`_chain_to`) that reach it, or all of them: the pairs' (x, dt)
+        oldest first, this pair's x̂ last, and the product of their brightness gains."""
         cfg = self.cfg
         travel = float(np.linalg.norm(self.ekf.x[V_SLICE])) * dt
-        chain = self._chain if self._chain and self._chain[-1][1] is A else []
+        chain = self._chain_to(A)
         if cfg.parallax_baseline_m <= 0 or not chain or travel >= cfg.parallax_baseline_m:
-            return A, None, None
+            return A, [(self.ekf.x, dt)], None
         n = 0  # earlier pairs taken
         while n < len(chain) and travel < cfg.parallax_baseline_m:
             n += 1
-            travel += float(np.linalg.norm(chain[-n][2][V_SLICE])) * chain[-n][3]
+            travel += float(np.linalg.norm(chain[-n][1][V_SLICE])) * chain[-n][2]
         pairs = chain[-n:]
-        motion = [(x, d) for _, _, x, d, _ in pairs] + [(self.ekf.x.copy(), dt)]
+        motion = [(x, d) for _, x, d, _ in pairs] + [(self.ekf.x.copy(), dt)]
         gain = float(np.prod([g for *_, g in pairs])) * self._gain
         return pairs[0][0], motion, gain
 
@@ -2277,7 +2269,10 @@ class DirectEstimator(EgoMotionEstimator):
         n_mark = np.bincount(marked, minlength=hr * wr).astype(np.float32) / cell_px
         carried = np.zeros(hr * wr, np.float32)
         if raised is not None:
-            P_a, w_a = self._plane_pixels(level.roi_rays32, self.K0, dt, False, float(level.scale))
+            pair = [(self.ekf.x, dt)]
+            P_a, w_a = self._plane_pixels(
+                level.roi_rays32, self.K0, pair, False, float(level.scale)
+            )
             ok = _in_level(w_a, P_a, self.K0, level.shape)
             carried[level.roi_idx[ok]] = sample_points((raised,), w_a[ok])[:, 0]
         seen = n_tex > 0.05  # a cell with some texture updates its average
@@ -2309,13 +2304,13 @@ class DirectEstimator(EgoMotionEstimator):
         self,
         A: _Frame,
         B: _Frame,
-        dt: float,
+        motion: _Motion,
         lvl: int,
         backward: bool,
-        motion: _Motion | None = None,
         gain: float | None = None,
     ) -> tuple[np.ndarray, ...]:
-        """Frame A warped onto B's textured ROI pixels at level lvl with x̂'s road motion.
+        """Frame A warped onto B's textured ROI pixels at level lvl with the road's motion
+        (`_plane_pixels`); gain: A's brightness over B's (None: the pair's, ``_gain``).
 
         Returns tex (N,) indices into the level's ROI candidates, idx (N,) their pixel
         indices, g (N,) B's gradient magnitude there, w_a (N, 2) where the road puts them in
@@ -2331,7 +2326,7 @@ class DirectEstimator(EgoMotionEstimator):
         if gain is None:
             gain = 1.0 / self._gain if backward else self._gain
         rays = np.take(level.roi_rays32, tex, 0)
-        P_a, w_a = self._plane_pixels(rays, self.K0, dt, backward, s, motion)
+        P_a, w_a = self._plane_pixels(rays, self.K0, motion, backward, s)
         ok = _valid_at(level.valid_b, w_a, _in_level(w_a, P_a, self.K0, level.shape))
         a_val = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
         b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
@@ -2349,7 +2344,7 @@ class DirectEstimator(EgoMotionEstimator):
         if self.cfg.mask_smear > 0 and len(idx):
             vb, ub = np.divmod(idx, wm)
             t = self._smear_steps
-            u = np.rint(ub + t * (ub - w_a[:, 0])).astype(np.intp)  # (4, M); t = 0 is idx itself
+            u = np.rint(ub + t * (ub - w_a[:, 0])).astype(np.intp)  # (4, M): t != 0 (idx is set)
             v = np.rint(vb + t * (vb - w_a[:, 1])).astype(np.intp)
             inb = (u >= 0) & (u < wm) & (v >= 0) & (v < hm)
             out[v[inb] * wm + u[inb]] = 1

@@ -960,14 +960,15 @@ def test_parallax_baseline_marks_a_kerb_seen_slowly() -> None:
     print(f"kerb marked {kerb_with:.2f} (one pair {kerb_without:.2f})")
     print(f"road marked {road_with:.3f} (one pair {road_without:.3f})")
     assert len(est._chain) == est.cfg.parallax_baseline_frames - 1  # 5 pairs kept
-    A = est._chain[-1][1]
+    A = est._chain_end
     older, motion, _ = est._parallax_baseline(A, DT)
     assert len(motion) == 4 and older is est._chain[-3][0]  # 4 x 0.133 m >= 0.5 m
     assert kerb_with > kerb_without + 0.2
     assert road_with < road_without + 0.03
     # a pair that travels the baseline by itself: the test's own pair
     est.ekf.x[:3] *= 10
-    assert est._parallax_baseline(A, DT)[1] is None
+    frame, motion, gain = est._parallax_baseline(A, DT)
+    assert frame is A and len(motion) == 1 and gain is None
 
 
 def test_given_road_mask_lets_raised_points_tell_the_rotation_only() -> None:
