@@ -1428,7 +1428,7 @@ class DirectEstimator(EgoMotionEstimator):
         # eq. 15: Δz = -g_t, g_t = B(w_b) - A(w_a) (B scaled by the brightness gain)
         dz = a_i - gain * b_val
         g *= gain
-        g2 = np.sum(g * g, axis=1)
+        g2 = g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1]  # (the sum over axis 1, ~3x faster)
         R = cfg.sigma_intensity**2 + cfg.sigma_flow_px**2 * g2
         if cfg.flow_noise_frac > 0 and w_a is not None:
             flow = np.take(w_b, idx, 0) - np.take(w_a, idx, 0)  # [level px]
@@ -1769,9 +1769,11 @@ class DirectEstimator(EgoMotionEstimator):
             n_it = 0
             included = np.zeros(len(sel), bool)  # used in x̂ (eq. 21) or not (eq. 20)
             last = None
-            n_max = cfg.iterations[cfg.levels - 1 - lvl] if len(sel) else 0
+            # a level with fewer points than a fit needs is skipped before its linearisation
+            # (whose brightness gain would come from those few points)
+            n_max = cfg.iterations[cfg.levels - 1 - lvl] if len(sel) >= cfg.min_points else 0
             searches = wide_level is None  # the retry's levels iterate from its wide search
-            if n_max and searches and lvl in cfg.search_levels and len(sel) >= cfg.min_points:
+            if n_max and searches and lvl in cfg.search_levels:
                 self._search(level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points)
             s2_ref, best, halvings = math.nan, None, 0
             while n_it < n_max:

@@ -578,6 +578,37 @@ def test_grid_search_fits_each_grid_points_brightness_gain(monkeypatch) -> None:
     assert np.array_equal(found[0.9], found[1.0]) and np.array_equal(found[1.1], found[1.0])
 
 
+def test_a_level_with_too_few_points_is_not_linearised(monkeypatch) -> None:
+    """A level whose selection has fewer than ``min_points`` points is skipped before its
+    linearisation: the brightness gain B -> A that the linearisation sets, and the next
+    level's static-point test reads (`_static_points`), must not come from a handful of
+    points (the coarsest level of the bench frames: 6 points at 25 m/s)."""
+    img_a, img_b, _ = _pair("omni-near")
+    camera, mount, _ = _camera("omni-near")
+    est = DirectEstimator(camera, mount, default_config("omni"))
+    est.step(img_a, 0.3, SPEED)
+    coarsest, n_few = est.cfg.levels - 1, est.cfg.min_points - 1
+    level_points, linearise = est._level_points, est._linearise
+    linearised: list[int] = []
+
+    def few_at_coarsest(lvl, *args, **kwargs):
+        level, sel, rays, a_val, off = level_points(lvl, *args, **kwargs)
+        if lvl == coarsest:
+            sel, rays, a_val = sel[:n_few], rays[:n_few], a_val[:n_few]
+            off = None if off is None else off[:n_few]
+        return level, sel, rays, a_val, off
+
+    def spy(level, lvl, *args, **kwargs):
+        linearised.append(lvl)
+        return linearise(level, lvl, *args, **kwargs)
+
+    monkeypatch.setattr(est, "_level_points", few_at_coarsest)
+    monkeypatch.setattr(est, "_linearise", spy)
+    rec = est.step(img_b, 0.3 + DT, SPEED)
+    assert coarsest not in linearised and set(linearised) == set(range(coarsest))
+    assert rec.iterations[0] == 0 and min(rec.iterations[1:]) > 0 and not rec.degraded
+
+
 def test_static_structure_is_not_used() -> None:
     """A textured patch at the same pixels in both frames (ego body, lens dirt) is dropped."""
     preset = "omni-near"
