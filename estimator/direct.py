@@ -2184,15 +2184,16 @@ class DirectEstimator(EgoMotionEstimator):
         if cfg.parallax_lambdas:
             plvl = self._parallax_lvl()
             A_p, motion, gain = (A, pair, None) if backward else self._parallax_baseline(A, dt)
-            if plvl != lvl or A_p is not A:
-                # the windowed test at a coarser level (cheaper), marks upsampled; or against
-                # an older frame: the same pixels (tex), their smear from the pair's motion
-                w_pair = w_a
+            if plvl != lvl:  # the windowed test at a coarser level (cheaper), marks upsampled
                 tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(
                     A_p, B, motion, plvl, backward, gain
                 )
-                if plvl == lvl:
-                    w_a = w_pair
+            elif A_p is not A:
+                # against an older frame: B's same textured pixels (gathered once) and their
+                # smear from the pair's own motion (w_a)
+                _, _, _, _, ok, _, r_road = self._road_residuals(
+                    A_p, B, motion, plvl, backward, gain, (tex, idx, g, b_val)
+                )
             par = self._parallax_marks(
                 A_p, B, motion, plvl, tex, idx, w_a, b_val, r_road, ok, noise, backward, gain
             )
@@ -2310,9 +2311,12 @@ class DirectEstimator(EgoMotionEstimator):
         lvl: int,
         backward: bool,
         gain: float | None = None,
+        textured: tuple[np.ndarray, ...] | None = None,
     ) -> tuple[np.ndarray, ...]:
         """Frame A warped onto B's textured ROI pixels at level lvl with the road's motion
-        (`_plane_pixels`); gain: A's brightness over B's (None: the pair's, ``_gain``).
+        (`_plane_pixels`); gain: A's brightness over B's (None: the pair's, ``_gain``);
+        textured: (tex, idx, g, b_val) of an earlier call for B at this level (only A and
+        the motion differ), else gathered here.
 
         Returns tex (N,) indices into the level's ROI candidates, idx (N,) their pixel
         indices, g (N,) B's gradient magnitude there, w_a (N, 2) where the road puts them in
@@ -2322,16 +2326,19 @@ class DirectEstimator(EgoMotionEstimator):
         """
         cfg, level = self.cfg, self.levels[lvl]
         s = float(level.scale)
-        g, _ = roi_gradients(B, level, lvl)
-        tex = np.flatnonzero(g > cfg.grad_threshold)
-        idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
+        if textured is None:
+            g, _ = roi_gradients(B, level, lvl)
+            tex = np.flatnonzero(g > cfg.grad_threshold)
+            idx, g = level.roi_idx[tex], g[tex].astype(np.float64)
+            b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
+        else:
+            tex, idx, g, b_val = textured
         if gain is None:
             gain = 1.0 / self._gain if backward else self._gain
         rays = np.take(level.roi_rays32, tex, 0)
         P_a, w_a = self._plane_pixels(rays, self.K0, motion, backward, s)
         ok = _valid_at(level.valid_b, w_a, _in_level(w_a, P_a, self.K0, level.shape))
         a_val = sample_points(A.stacks[lvl][:1], w_a)[:, 0].astype(np.float64)
-        b_val = B.stacks[lvl][0].ravel()[idx].astype(np.float64)
         return tex, idx, g, w_a, ok, b_val, a_val - gain * b_val
 
     def _smeared_marks(
