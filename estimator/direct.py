@@ -2184,18 +2184,20 @@ class DirectEstimator(EgoMotionEstimator):
         if cfg.parallax_lambdas:
             plvl = self._parallax_lvl()
             A_p, motion, gain = (A, pair, None) if backward else self._parallax_baseline(A, dt)
+            w_road = w_a  # where the road puts B's textured pixels in A_p
             if plvl != lvl:  # the windowed test at a coarser level (cheaper), marks upsampled
                 tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(
                     A_p, B, motion, plvl, backward, gain
                 )
+                w_road = w_a
             elif A_p is not A:
-                # against an older frame: B's same textured pixels (gathered once) and their
-                # smear from the pair's own motion (w_a)
-                _, _, _, _, ok, _, r_road = self._road_residuals(
+                # against an older frame: B's same textured pixels (gathered once); the marks'
+                # smear stays the pair's own motion (w_a)
+                _, _, _, w_road, ok, _, r_road = self._road_residuals(
                     A_p, B, motion, plvl, backward, gain, (tex, idx, g, b_val)
                 )
             par = self._parallax_marks(
-                A_p, B, motion, plvl, tex, idx, w_a, b_val, r_road, ok, noise, backward, gain
+                A_p, B, motion, plvl, tex, idx, w_road, b_val, r_road, ok, noise, backward, gain
             )
             marks = self._smeared_marks(idx[par], w_a[par], self.levels[plvl].shape)
             if plvl != lvl:

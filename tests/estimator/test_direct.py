@@ -1002,6 +1002,35 @@ def test_parallax_baseline_marks_a_kerb_seen_slowly() -> None:
     assert frame is A and len(motion) == 1 and gain is None
 
 
+def test_parallax_baseline_compares_the_planes_in_the_older_frame(monkeypatch) -> None:
+    """Against an older frame the plane-parallax test measures how far a raised plane moves a
+    pixel from where the road puts it in that same frame (``parallax_min_px``), not from the
+    pair's own road warp: the road's pixels handed to `_parallax_marks` are those of the
+    composed motion in the older frame."""
+    camera, mount, _ = _camera("omni-near")
+    frames = _slow_raised_frames(6, 2.0, (60, 240, 70, 160), 0.15)
+    est = DirectEstimator(camera, mount, default_config("omni"))
+    seen = []
+    marks = est._parallax_marks
+
+    def spy(A_p, B, motion, lvl, tex, idx, w_road, *args, **kwargs):
+        seen.append((motion, lvl, tex, w_road.copy()))
+        return marks(A_p, B, motion, lvl, tex, idx, w_road, *args, **kwargs)
+
+    monkeypatch.setattr(est, "_parallax_marks", spy)
+    for k, img in enumerate(frames):
+        est.step(img, k * DT, 2.0 * CAN_SCALE)
+    motion, lvl, tex, w_road = seen[-1]
+    assert len(motion) > 1  # the last pair's test ran against an older frame
+    level = est.levels[lvl]
+    _, w_older = est._plane_pixels(level.roi_rays32[tex], est.K0, motion, False, level.scale)
+    _, w_pair = est._plane_pixels(level.roi_rays32[tex], est.K0, motion[-1:], False, level.scale)
+    ok = w_road[:, 0] >= 0
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(w_road[ok], w_older[ok], atol=1e-3)
+    assert np.abs(w_older[ok] - w_pair[ok]).max() > 1.0  # the two frames' warps differ
+
+
 def test_given_road_mask_lets_raised_points_tell_the_rotation_only() -> None:
     """A textured plane 0.2 m above the road over a large box beside the car (lambda 1.11:
     within the noise point by point, like guard-rail post bottoms) pulls the speed up by
