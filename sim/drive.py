@@ -334,15 +334,18 @@ class DriveRenderer:
         ids = decode_id_image(renderer.remap_nearest(id_atlas))
         range_m = renderer.range_image(depth)
         flow = None
-        if self.sensor.motion_blur and k + 1 < len(self.frames):
+        if self.sensor.motion_blur and len(self.frames) > 1:
+            # the motion to the next frame; the last frame has none: the motion from the
+            # previous one (the blur is symmetric about the frame's pose, its sign is moot)
+            j = k + 1 if k + 1 < len(self.frames) else k - 1
             full = scene_flow_px(
                 self.camera,
                 self._rays,
                 range_m,
                 ids,
                 pose,
-                self.poses[k + 1],
-                vehicle_displacements(self.frames[k], self.frames[k + 1]),
+                self.poses[j],
+                vehicle_displacements(self.frames[k], self.frames[j]),
             )
             flow = full * float(self.sensor.exposure_s * self.scenario.fps)
         rng = np.random.default_rng([self.scenario.seed, 4, k])

@@ -188,3 +188,23 @@ def test_default_face_is_finer_than_the_camera(preset):
     assert texel_rad * drive_mod.FACE_OVERSAMPLING <= np.percentile(angle, 1) * 1.0001
     # one size smaller would not be: the rule does not overshoot by more than 2x
     assert np.arctan(2.0 / (face / 2 - 3)) * drive_mod.FACE_OVERSAMPLING > np.percentile(angle, 1)
+
+
+def test_every_frame_is_blurred_by_the_motion_also_the_last(tmp_path):
+    """Motion blur on every frame: the last one (no next frame) takes the motion from the
+    previous one; before, it was left sharp (a pair of a blurred and a sharp frame that
+    no camera gives)."""
+    n = 3
+    sensor = {"noise_std": 0, "exposure_s": 0.03, "jpeg_quality": None, "gain_drift": 0}
+    sensor["vignetting"] = 0
+    frames = {}
+    for blur in (True, False):
+        scenario = tiny(duration_s=n / 15, sensor={**sensor, "motion_blur": blur})
+        render_drive(scenario, tmp_path / str(blur), progress=False)
+        frames[blur] = [
+            read_png(tmp_path / str(blur) / "frames" / f"{k:06d}.png").astype(float)
+            for k in range(n)
+        ]
+    change = [np.abs(b - s).mean() for b, s in zip(frames[True], frames[False], strict=True)]
+    assert min(change) > 0.3, change  # [DN] every frame blurred
+    assert change[-1] > 0.5 * change[-2], change  # the last as much as the one before
