@@ -113,7 +113,7 @@ from estimator.iekf import (
 from estimator.motion_model import constraint_rows, map_rays, warp_jacobian
 from estimator.mount import CameraMount
 from estimator.road_appearance import offroad_by_appearance, seed_indices
-from estimator.roi_strip import RoiStrip, roi_strip, strip_blur
+from estimator.roi_strip import RoiStrip, roi_strip, strip_blur_image
 
 UNUSED, INLIER, OUTLIER = 0, 1, 2  # point labels (paper Fig. 4b: black, gray, white)
 
@@ -2114,16 +2114,17 @@ class DirectEstimator(EgoMotionEstimator):
         strip = self._parallax_strip(lvl, half)
         put, get = strip.copies[:, tex[smp]], strip.core[tex]
         window = gaussian_kernel(cfg.parallax_window_px, 2 * half + 1)
+        canvas = np.zeros(strip.size + 1, np.float32)  # every blur sets the same pixels
 
-        def blurred(values: np.ndarray) -> np.ndarray:
-            return strip_blur(strip, put, values, window, get)
+        def blurred(values: np.ndarray) -> np.ndarray:  # (strip.size,), read once at the end
+            return strip_blur_image(strip, put, values, window, canvas)
 
         # The windowed energies are blur(r²) / blur(1) over the samples; the blur is linear,
         # so "e_l < ratio e_road" is "blur(r²_l - ratio r²_road) < 0", and the road's energy
         # above the noise level s² sigma² is "blur(r²_road - noise² / thr) > 0": one blur
         # per hypothesis and one for the noise, none for the normalisation.
         loud = blurred(r2_road - noise**2 / cfg.snoop_threshold) > 0
-        better = np.zeros(len(tex), bool)
+        better = np.zeros(strip.size, bool)
         if gain is None:
             gain = 1.0 / self._gain if backward else self._gain
         # every hypothesis's warp and samples at once: (L, n) per plane lambda
@@ -2137,7 +2138,7 @@ class DirectEstimator(EgoMotionEstimator):
         for i, a_i in enumerate(a_l.reshape(n_lam, -1)):
             r2 = np.where(use[i], np.square(a_i - gain * b_val), r2_road)
             better |= blurred(r2 - cfg.parallax_ratio * r2_road) < 0
-        return better & ok & loud
+        return (better & loud)[get] & ok
 
     def _offroad_map(
         self,

@@ -142,8 +142,21 @@ def strip_blur(
     ways), read at some ROI pixels. put: (C, K) ``strip.copies[:, at]`` of the valued ROI
     pixels at (K,); get: (N,) ``strip.core[read]`` of the read ones (both indices into the
     ROI; computed once for several blurs of the same pixels)."""
-    img = np.zeros(strip.size + 1, np.float32)
+    return strip_blur_image(strip, put, values, kernel)[get]
+
+
+def strip_blur_image(
+    strip: RoiStrip,
+    put: np.ndarray,
+    values: np.ndarray,
+    kernel: np.ndarray,
+    canvas: np.ndarray | None = None,
+) -> np.ndarray:
+    """(strip.size,) float32: the blurred strip of `strip_blur`, not yet read (several blurs
+    compared pixel by pixel are read once). canvas: (strip.size + 1,) float32, zero except
+    at put's pixels, to reuse across blurs of the same put (each overwrites those pixels
+    alone); None: a new one."""
+    img = np.zeros(strip.size + 1, np.float32) if canvas is None else canvas
     for copy in put:
         img[copy] = values
-    out = cv2.sepFilter2D(img[:-1].reshape(strip.shape), -1, kernel, kernel)
-    return out.ravel()[get]
+    return cv2.sepFilter2D(img[:-1].reshape(strip.shape), -1, kernel, kernel).ravel()

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimator.direct import gaussian_kernel
-from estimator.roi_strip import _box, _packed, roi_strip, strip_blur
+from estimator.roi_strip import _box, _packed, roi_strip, strip_blur, strip_blur_image
 
 
 def _rois() -> dict[str, tuple[tuple[int, int], np.ndarray]]:
@@ -90,3 +90,21 @@ def test_empty_roi():
     kernel = gaussian_kernel(1.0, 7)
     out = strip_blur(strip, strip.copies[:, :0], np.zeros(0, np.float32), kernel, strip.core[:0])
     assert out.shape == (0,)
+
+
+def test_a_reused_canvas_gives_each_blur_as_a_fresh_one():
+    """`strip_blur_image` with one canvas for several blurs of the same pixels (each
+    overwrites them): every blur as on a new zero canvas, also the pixels with two copies."""
+    shape, mask = _rois()["edges"]  # reflected copies at the image's edges
+    roi = np.flatnonzero(mask)
+    kernel = gaussian_kernel(1.5, 11)
+    strip = _packed(*np.divmod(roi, shape[1]), shape, 5, 16)
+    assert strip.copies.shape[0] > 1
+    rng = np.random.default_rng(3)
+    put = strip.copies[:, rng.choice(len(roi), len(roi) // 3, replace=False)]
+    canvas = np.zeros(strip.size + 1, np.float32)
+    for _ in range(3):
+        values = rng.normal(size=put.shape[1]).astype(np.float32)
+        fresh = strip_blur_image(strip, put, values, kernel)
+        np.testing.assert_array_equal(strip_blur_image(strip, put, values, kernel, canvas), fresh)
+        assert fresh.shape == (strip.size,) and np.abs(fresh).max() > 0
