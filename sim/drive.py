@@ -53,7 +53,7 @@ from sim.scene import (
     vehicle_corners_world,
     vehicles_mesh,
 )
-from sim.sensor import SensorModel, apply_sensor, gain_sequence
+from sim.sensor import SensorModel, apply_sensor, exposure_times, gain_sequence
 
 SKY_RGB = (0.62, 0.74, 0.90)
 
@@ -275,7 +275,7 @@ class DriveRenderer:
         self.scenario, self.camera, self.mount, self.frames = scenario, camera, mount, frames
         n = len(frames)
         rng_world = np.random.default_rng([scenario.seed, 0])
-        vib = Vibration.seeded(
+        self.vibration = vib = Vibration.seeded(
             scenario.vibration.amplitude_deg, scenario.vibration.frequency_hz, rng_world
         )
         self.poses = [
@@ -320,6 +320,26 @@ class DriveRenderer:
             self._renderer.close()
             self._renderer = None
 
+    def _moved(self, k: int, tau_s: float) -> tuple[CameraPose, dict[int, np.ndarray]]:
+        """The camera's pose and the vehicles' displacements [m] at tau_s from frame k's time,
+        for the motion blur: the simulator moves every vehicle straight and turns it evenly
+        between frames (linear in x, y and yaw toward the next frame for tau_s > 0, from
+        the previous one before; the first and the last frame extrapolate the one they
+        have); the camera's vibration at that very time."""
+        n = len(self.frames)
+        j = k + 1 if (tau_s > 0 and k + 1 < n) or k == 0 else k - 1
+        a, b = self.frames[k], self.frames[j]
+        f = tau_s / (b.t_s - a.t_s)  # fraction of the way to frame j (< 0: away from it)
+        dyaw = (b.ego.yaw_rad - a.ego.yaw_rad + np.pi) % (2 * np.pi) - np.pi
+        car = T_world_car(
+            a.ego.x_m + f * (b.ego.x_m - a.ego.x_m),
+            a.ego.y_m + f * (b.ego.y_m - a.ego.y_m),
+            a.ego.yaw_rad + f * dyaw,
+        )
+        pose = camera_pose(car, self.mount, self.vibration, a.t_s + tau_s)
+        moved = {i: f * d for i, d in vehicle_displacements(a, b).items()}
+        return pose, moved
+
     def produce(self, k: int) -> FrameImages:
         renderer = self._open()
         pose = self.poses[k]
@@ -333,21 +353,12 @@ class DriveRenderer:
         image = renderer.remap_color(atlas)
         ids = decode_id_image(renderer.remap_nearest(id_atlas))
         range_m = renderer.range_image(depth)
-        flow = None
+        blur = None
         if self.sensor.motion_blur and len(self.frames) > 1:
-            # the motion to the next frame; the last frame has none: the motion from the
-            # previous one (the blur is symmetric about the frame's pose, its sign is moot)
-            j = k + 1 if k + 1 < len(self.frames) else k - 1
-            full = scene_flow_px(
-                self.camera,
-                self._rays,
-                range_m,
-                ids,
-                pose,
-                self.poses[j],
-                vehicle_displacements(self.frames[k], self.frames[j]),
-            )
-            flow = full * float(self.sensor.exposure_s * self.scenario.fps)
+            blur = [
+                scene_flow_px(self.camera, self._rays, range_m, ids, pose, *self._moved(k, tau))
+                for tau in exposure_times(self.sensor.exposure_s)
+            ]
         rng = np.random.default_rng([self.scenario.seed, 4, k])
         out = apply_sensor(
             image,
@@ -355,7 +366,7 @@ class DriveRenderer:
             rng,
             gain=float(self.gains[k]),
             vignette=self.vignette,
-            flow_px=flow,
+            blur_px=blur,
             mask=self._mask,
         )
         return FrameImages(out, ids, range_m)

@@ -112,7 +112,7 @@ from sim.highway import (
 )
 from sim.renderer import OmniRenderer
 from sim.scene import decode_id_image, id_occluder_mesh, vehicles_mesh
-from sim.sensor import SensorModel, apply_sensor
+from sim.sensor import SensorModel, apply_sensor, exposure_times
 from sim.textures import asphalt_texture, grass_texture
 
 # highway-env's "human" render mode opens a pygame window. Without a display SDL falls
@@ -733,7 +733,7 @@ class OmniEnvRenderer:
             )
             ids = decode_id_image(renderer.remap_nearest(id_atlas))
             ids[~self.mask] = -1
-        flow = None
+        blur = None
         xy_now = {s.id: np.array([s.x_m, s.y_m, 0.0]) for s in states}
         if blur and obs.prev_pose is not None and t_s > (obs.prev_time or 0.0):
             if self._rays is None:
@@ -744,7 +744,8 @@ class OmniEnvRenderer:
                 flow_ids = np.where(ids == ego.id, 0, np.where(ids == 0, ego.id, ids))
                 disp = {(0 if i == ego.id else ego.id if i == 0 else i): d for i, d in disp.items()}
             dt = t_s - obs.prev_time
-            # motion from now back to the previous observation; blur is symmetric
+            # the motion from now back to the previous observation, taken as steady over
+            # the exposure (centred on now: the motion to come is not known yet)
             full = scene_flow_px(
                 self.camera,
                 self._rays,
@@ -754,7 +755,7 @@ class OmniEnvRenderer:
                 obs.prev_pose,
                 disp,
             )
-            flow = full * float(self.sensor.exposure_s / dt)
+            blur = [(-tau / dt) * full for tau in exposure_times(self.sensor.exposure_s)]
         obs.prev_pose, obs.prev_xy, obs.prev_time = pose, xy_now, t_s
         rng = np.random.default_rng([*ep.seed_words, 4, ego.id, int(base.steps)])
         image = apply_sensor(
@@ -763,7 +764,7 @@ class OmniEnvRenderer:
             rng,
             gain=self._gain(obs),
             vignette=self.vignette,
-            flow_px=flow,
+            blur_px=blur,
             mask=self.mask,
         )
         ids_out = ids if want_ids else None
