@@ -2175,7 +2175,7 @@ class DirectEstimator(EgoMotionEstimator):
         hm, wm = self.levels[lvl].shape
         pair = [(self.ekf.x, dt)]
         tex, idx, g, w_a, ok, b_val, r_road = self._road_residuals(A, B, pair, lvl, backward)
-        tex_mask = tex
+        textured = tex, idx  # B's textured pixels at the mask level
         noise = math.sqrt(cfg.snoop_threshold * min(max(s2, 1.0), 100.0)) * cfg.sigma_intensity
         if residuals:
             bad = ok & (np.abs(r_road) > cfg.mask_motion_px * g + noise)
@@ -2204,7 +2204,7 @@ class DirectEstimator(EgoMotionEstimator):
             if plvl != lvl:
                 marks = cv2.resize(marks, (wm, hm), interpolation=cv2.INTER_NEAREST)
             if cfg.raised_memory > 0 and not backward:
-                marks |= self._raised_cells(tex_mask, dt, marks, raised)
+                marks |= self._raised_cells(*textured, dt, marks, raised)
             out |= marks
         return out
 
@@ -2249,10 +2249,15 @@ class DirectEstimator(EgoMotionEstimator):
         return pairs[0][0], motion, gain
 
     def _raised_cells(
-        self, tex: np.ndarray, dt: float, marks: np.ndarray, raised: np.ndarray | None
+        self,
+        tex: np.ndarray,
+        idx: np.ndarray,
+        dt: float,
+        marks: np.ndarray,
+        raised: np.ndarray | None,
     ) -> np.ndarray:
         """(H_m, W_m) uint8: B's textured pixels (tex (N,): indices into the mask level's ROI,
-        from `_road_residuals`) in cells of level ``raised_level`` that the
+        idx (N,) their pixels, from `_road_residuals`) in cells of level ``raised_level`` that the
         plane-parallax test has marked in at least ``raised_share`` of their textured pixels,
         on average over the recent frames; stores B's evidence (H_r, W_r) float32 for the
         next pair.
@@ -2269,7 +2274,7 @@ class DirectEstimator(EgoMotionEstimator):
         hr, wr = level.shape
         cell_of, cell_px = self._cells(lvl, rl)
         # the shares per cell: means over the cell's mask-level pixels
-        idx, cell = self.levels[lvl].roi_idx[tex], cell_of[tex]
+        cell = cell_of[tex]
         n_tex = np.bincount(cell, minlength=hr * wr).astype(np.float32) / cell_px
         marked = cell[marks.ravel()[idx].view(bool)]  # marks are 0 / 1
         n_mark = np.bincount(marked, minlength=hr * wr).astype(np.float32) / cell_px
