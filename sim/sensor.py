@@ -53,9 +53,10 @@ def motion_blur(image: np.ndarray, displacements_px: Sequence[np.ndarray]) -> np
 
     displacements_px: per sample time, (H, W, 2) image motion [px] (u, v) of each pixel's
     scene point from the frame's time to it. At that time a pixel x sees the point y with
-    ``y + d(y) = x``, solved by one fixed-point step from ``x - d(x)`` (exact to second
-    order: a straight streak along each pixel's own motion moved a feature ~4x farther
-    than its path's time average where the motion changes along the streak).
+    ``y + d(y) = x``, solved by one fixed-point step from ``x - d(x)``. (A straight streak
+    along each pixel's own motion to the next frame, the blur before, moved a feature ~2.7x
+    farther than its path's time average where the motion changes along the streak:
+    0.068 against 0.026 px in `test_motion_blur_is_the_time_average_of_the_paths`.)
     """
     if not len(displacements_px):
         return image
