@@ -733,7 +733,7 @@ class OmniEnvRenderer:
             )
             ids = decode_id_image(renderer.remap_nearest(id_atlas))
             ids[~self.mask] = -1
-        blur = None
+        blur_px = None
         xy_now = {s.id: np.array([s.x_m, s.y_m, 0.0]) for s in states}
         if blur and obs.prev_pose is not None and t_s > (obs.prev_time or 0.0):
             if self._rays is None:
@@ -755,7 +755,7 @@ class OmniEnvRenderer:
                 obs.prev_pose,
                 disp,
             )
-            blur = [(-tau / dt) * full for tau in exposure_times(self.sensor.exposure_s)]
+            blur_px = [(-tau / dt) * full for tau in exposure_times(self.sensor.exposure_s)]
         obs.prev_pose, obs.prev_xy, obs.prev_time = pose, xy_now, t_s
         rng = np.random.default_rng([*ep.seed_words, 4, ego.id, int(base.steps)])
         image = apply_sensor(
@@ -764,7 +764,7 @@ class OmniEnvRenderer:
             rng,
             gain=self._gain(obs),
             vignette=self.vignette,
-            blur_px=blur,
+            blur_px=blur_px,
             mask=self.mask,
         )
         ids_out = ids if want_ids else None

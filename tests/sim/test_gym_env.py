@@ -283,6 +283,28 @@ def test_observation_type_by_name_in_another_env_config_with_sensor_effects():
     k.close()
 
 
+def test_motion_blur_blurs_the_frames_after_the_first():
+    """With the sensor's motion blur (a long exposure here), the frame after a step differs
+    from the same frame without it; the first frame (no motion before it) hardly does (the
+    depth pass that the blur needs moves a few pixels). The blur was once switched off by
+    its own flag's name being reused."""
+    frames = {}
+    for blur in (True, False):
+        sensor = {"noise_std": 0, "motion_blur": blur, "exposure_s": 0.05, "gain_drift": 0}
+        sensor.update(jpeg_quality=None, vignetting=0)
+        cfg = {"type": OBSERVATION_TYPE, "sensor": sensor, "vibration": None}
+        cfg["camera"] = {"preset": "omni-near", "width": 64, "height": 64}
+        e = gymnasium.make("highway-v0", config={"observation": cfg})
+        try:
+            first, _ = e.reset(seed=0)
+            second, *_ = e.step(1)
+        finally:
+            e.close()
+        frames[blur] = first.astype(float), second.astype(float)
+    change = [np.abs(b - s).mean() for b, s in zip(frames[True], frames[False], strict=True)]
+    assert change[0] < 0.1 and change[1] > 0.3, change  # [DN] (measured 0.02 and 1.34)
+
+
 def test_tiled_world_is_deterministic_and_rebuilt_only_when_the_window_moves():
     e = gymnasium.make("merge-v0")
     e.reset(seed=0)
