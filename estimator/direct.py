@@ -98,6 +98,7 @@ from estimator.homography import (
     N_STATE,
     V_SLICE,
     W_SLICE,
+    check_state,
     dh_dx,
     homographies,
     homography,
@@ -588,6 +589,21 @@ class EgoMotionRecord:
     def A(self) -> np.ndarray:
         """(3,) angular displacement of the actual camera [rad]."""
         return self.x[A_SLICE]
+
+
+@dataclass
+class PointPull:
+    """What the last pair's finest-level inliers ask of a state (`DirectEstimator.point_pull`).
+
+    points_px (N, 2): the inliers in the pair's first frame [px]; dx (N, 9): each one's part
+    of one IEKF step from that state (eq. 17-18 with the prior's covariance but not its
+    mean), so that ``dx.sum(0)`` is where the images alone move it. At the true state the
+    sum is the images' own pull off the truth (0 on average for a road that fits the
+    model); the points that carry it show where the road model fails.
+    """
+
+    points_px: np.ndarray
+    dx: np.ndarray
 
 
 def make_record(
@@ -1304,6 +1320,7 @@ class DirectEstimator(EgoMotionEstimator):
         self._chain_end: _Frame | None = None
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
+        self._fine: tuple | None = None  # the last fit's finest level (`point_pull`)
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
         self._road_prev: np.ndarray | None = None  # given road mask of the previous frame
         self._offroad_given: list[np.ndarray] | None = None  # its exclusions, per level
@@ -1327,6 +1344,40 @@ class DirectEstimator(EgoMotionEstimator):
         x = self.ekf.x if x is None else x
         warped, ok = self._compensator.warp(image_prev, x, dt_s)
         return np.where(ok, warped, 0.0).astype(np.float32)
+
+    def point_pull(self, x: np.ndarray) -> PointPull | None:
+        """The last pair's finest-level inliers relinearised at the state x (9,) (a diagnostic:
+        given the true state of a rendered drive, what each point asks of it).
+
+        Each inlier's residual and row of C at x (`_linearise`, the fit's brightness gain
+        refitted there) with the fit's noise weighting (``adaptive_noise``,
+        ``independent_points``); the step is eq. 17-18's from x with the prior's covariance
+        P⁻ but not its mean: ``(P⁻⁻¹ + Cᵀ R⁻¹ C)⁻¹ Cᵀ R⁻¹ Δz``, split point by point. None
+        when the last frame had no usable fit (the first frame, a bad frame, a failure).
+        """
+        x = check_state(x, "point_pull x")
+        if self._fine is None:
+            return None
+        level, pts, rays, a_val, B, off, w_a, dt, labels, s2 = self._fine
+        cfg, ekf = self.cfg, self.ekf
+        inlier = labels == INLIER
+        saved = ekf.x, self._gain
+        ekf.x = x
+        try:
+            idx, dz, C, R = self._linearise(level, 0, rays, a_val, B, dt, inlier, off, w_a)
+        finally:
+            ekf.x, self._gain = saved
+        use = inlier[idx]
+        idx, dz, C, R = idx[use], dz[use], C[use], R[use]
+        if cfg.adaptive_noise:
+            R = R * min(max(s2, 0.25), 100.0)
+        if cfg.independent_points > 0 and len(idx) > cfg.independent_points:
+            R = R * (len(idx) / cfg.independent_points)
+        CR = C / R[:, None]
+        # eq. 18 from x: H⁻¹ Cᵢᵀ Δzᵢ / Rᵢ per point (rows; H symmetric)
+        H = ekf.P_prior_inv + C.T @ CR
+        dx = (CR * dz[:, None]) @ np.linalg.inv(H)
+        return PointPull(points_px=np.asarray(pts)[idx], dx=dx)
 
     # -- internals ----------------------------------------------------------------
     def _frame(self, gray: np.ndarray, t_s: float) -> _Frame:
@@ -1359,6 +1410,7 @@ class DirectEstimator(EgoMotionEstimator):
     ) -> dict[str, Any]:
         prev, frame = self._prev, self._frame(gray, t_s)
         self._prev = frame
+        self._fine = None  # set by a usable fit of this pair (`point_pull`)
         # the pair's points come from the previous frame: its road mask, per level
         self._offroad_given = self._given_offroad(self._road_prev)
         self._road_prev = self._road_mask_new
@@ -1586,6 +1638,8 @@ class DirectEstimator(EgoMotionEstimator):
             ekf.hold_A()
             flags.append("A-held")
         res.pop("done_levels")
+        fine = res.pop("fine")
+        self._fine = fine if failure is None else None
         return res
 
     def _carry_map(self, flags: list[str]) -> np.ndarray | None:
@@ -1742,6 +1796,7 @@ class DirectEstimator(EgoMotionEstimator):
         done_levels = 0
         pts_out, labels_out, info_out = np.zeros((0, 2)), np.zeros(0, np.int8), np.zeros(0)
         s2 = noise_scale = math.nan
+        fine = None  # the finest level's points and frames, for `point_pull`
         speed = float((self.R_car_cam @ ekf.x_prior[V_SLICE])[0])
         col_scale = _column_scale(dt, speed)
         if wide_level is not None:
@@ -1820,6 +1875,7 @@ class DirectEstimator(EgoMotionEstimator):
             done_levels += n_it > 0
             if lvl == 0:
                 pts_out, labels_out, noise_scale = level.roi_w[sel], labels, s2
+                fine = (level, pts_out, rays, a_val, B, off, w_a, dt, labels, s2)
                 info_out = np.zeros(len(sel))
                 if last is not None:  # the finest level's last linearisation
                     idx, C, R = last
@@ -1833,6 +1889,7 @@ class DirectEstimator(EgoMotionEstimator):
             "point_labels": labels_out,
             "point_speed_info": info_out,
             "done_levels": done_levels,
+            "fine": fine,
         }
 
     def _level_points(

@@ -48,6 +48,7 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
         "localization",
         "compensation",
         "points_above_road",
+        "point_pull",
         "timing",
     ):
         if isinstance(metrics.get(name), dict):
@@ -56,6 +57,7 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
         ("surround.png", "side-by-side panels (paper Fig. 4)"),
         ("ego_error.png", "ego-motion against ground truth and the CAN prior"),
         ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
+        ("pull.png", "where the images pull the estimate off the truth (point_pull)"),
     ):
         if (out_dir / img).exists():
             parts.append(f"<div class=sec><h2>{caption}</h2><img src='{img}' alt='{img}'></div>")

@@ -23,7 +23,7 @@ from estimator.camera_io import load_camera
 from estimator.detection import DetectorConfig
 from estimator.fileio import atomic_write, write_json, write_png, write_text
 from estimator.geometry import rot_z
-from estimator.homography import homography
+from estimator.homography import homography, make_state
 from estimator.pipeline import write_egomotion_csv
 from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
@@ -38,7 +38,7 @@ from scenarios.metrics import (
     plot_ego_errors,
     read_egomotion_csv,
 )
-from scenarios.point_audit import camera_unit_rays, gt_road_mask, points_above_road
+from scenarios.point_audit import PullMap, camera_unit_rays, gt_road_mask, points_above_road
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from sim.drive import load_groundtruth, render_drive
@@ -115,6 +115,9 @@ def run_scenario(
     est = make_estimator(estimator, camera, mount)
     surround = SurroundAnalyzer(camera, mount, det_cfg)
     unit_rays = camera_unit_rays(camera) if road_mask else None
+    # where the images pull the estimate off the truth (estimators that can tell)
+    pull = PullMap(camera, mount) if hasattr(est, "point_pull") else None
+    still_image = None
     records, track_rows, eval_det, eval_trk = [], [], [], []
     t_est, t_det = [], []
     writer = _VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
@@ -135,6 +138,12 @@ def run_scenario(
                 t_est.append(t1 - t0)
                 t_det.append(t2 - t1)
             records.append(rec)
+            truth = gt[k]["motion_from_prev"]
+            if pull is not None and truth is not None:
+                x_true = make_state(truth["V_mps"], truth["W_rps"], truth["A_rad"])
+                pull.add(est.point_pull(x_true))
+            if k == still_k:
+                still_image = image
             if sf is None:
                 continue
             gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
@@ -194,6 +203,7 @@ def run_scenario(
         "localization": det_m["localization"],
         "compensation": compensation,
         "points_above_road": points_above_road(drive_dir, camera, gt, records),
+        "point_pull": _point_pull(pull, series, out_dir / "pull.png", still_image),
         "evaluation": {
             "gate_m": GATE_M,
             "visible_px_min": VISIBLE_PX_MIN,
@@ -209,6 +219,16 @@ def run_scenario(
     write_run_report(out_dir, metrics)
     write_json(out_dir / "metrics.json", metrics)  # last: its presence marks a finished run
     return metrics
+
+
+def _point_pull(pull: PullMap | None, series: dict, png: Path, image) -> dict:
+    """metrics.json's "point_pull" section (`PullMap.summary`, NaN for an estimator
+    without `point_pull`) and its picture ``png`` over ``image``."""
+    if pull is None:
+        return {"pairs": 0, "nan_reason": "the estimator has no point_pull"}
+    if pull.pairs and image is not None:
+        pull.write_png(png, image)
+    return pull.summary(float(np.nanmean(series["speed_gt"])))
 
 
 def _median_ms(ts: list[float]) -> float:

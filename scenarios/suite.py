@@ -95,6 +95,8 @@ KNOWN_METRICS = (
     "compensation.ratio",
     "compensation.road_rms",
     "compensation.road_rms_gt",
+    "point_pull.speed_pull_pct",
+    "point_pull.yaw_rate_pull_dps",
     "timing.render_ms_per_frame",
     "timing.estimate_ms_per_frame",
     "timing.detect_track_ms_per_frame",

@@ -50,6 +50,10 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     audit = m["points_above_road"]  # a highway with guard rails: some, not most
     assert audit["frames"] == 23 and audit["inliers"] > 0
     assert 0.0 <= audit["inlier_share"] < 0.5 and 0.0 <= audit["speed_info_share"] < 0.5
+    pull = m["point_pull"]  # the images' pull at the true state: small on a highway
+    assert pull["pairs"] >= 20 and abs(pull["speed_pull_pct"]) < 5.0
+    assert math.isfinite(pull["yaw_rate_pull_dps"])
+    assert sum(b["points_share"] for b in pull["by_range"].values()) == pytest.approx(1.0)
     for key in ("render_ms_per_frame", "estimate_ms_per_frame", "detect_track_ms_per_frame"):
         assert m["timing"][key] > 0
     for name in (
@@ -58,6 +62,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
         "ego_error.png",
         "tracks.png",
         "surround.png",
+        "pull.png",
         "analysis.mp4",
         "report.html",
         "drive/drive.mp4",

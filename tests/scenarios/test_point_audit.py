@@ -8,9 +8,15 @@ import numpy as np
 import pytest
 
 from estimator.camera_io import load_camera
-from estimator.direct import INLIER, OUTLIER
-from estimator.fileio import write_png
-from scenarios.point_audit import camera_unit_rays, gt_road_mask, height_map, points_above_road
+from estimator.direct import INLIER, OUTLIER, PointPull
+from estimator.fileio import read_png, write_png
+from scenarios.point_audit import (
+    PullMap,
+    camera_unit_rays,
+    gt_road_mask,
+    height_map,
+    points_above_road,
+)
 from sim.camera_motion import T_world_car, camera_pose
 
 
@@ -92,3 +98,56 @@ def test_run_refuses_an_unknown_road_mask(tmp_path: Path):
 
     with pytest.raises(ValueError, match="road_mask must be 'gt' or None, got 'seg'"):
         run_scenario(load_scenario("highway-omni-near"), tmp_path, road_mask="seg")
+
+
+def _road_pixel(camera, mount, forward_m: float, left_m: float) -> np.ndarray:
+    """(2,) pixel of the road point at (forward_m, left_m) in the car frame (nominal pose)."""
+    p_car = np.array([forward_m, left_m, 0.0]) - mount.position_m
+    return camera.project((mount.R_car_cam.T @ p_car)[None])[0]
+
+
+def test_pull_map_sums_the_pulls_per_pixel_and_range(tmp_path: Path):
+    """Two pairs: a near point pulling the speed up and a far one pulling the yaw rate down.
+    The means per pair, their split by road range, and the picture follow."""
+    camera, mount = load_camera("omni-near")
+    R = mount.R_car_cam
+    near = _road_pixel(camera, mount, 4.0, 3.0)  # ~5 m from the camera
+    far = _road_pixel(camera, mount, 0.0, 25.0)  # ~25 m
+    dx_near = np.zeros(9)
+    dx_near[:3] = 0.2 * R[0]  # +0.2 m/s forward
+    dx_far = np.zeros(9)
+    dx_far[3:6] = np.radians(-0.5) * R[2]  # -0.5 deg/s yaw
+    pm = PullMap(camera, mount)
+    pm.add(PointPull(np.array([near, far]), np.stack([dx_near, dx_far])))
+    pm.add(PointPull(np.array([near]), dx_near[None]))
+    pm.add(None)  # a pair without a fit is not counted
+    s = pm.summary(20.0)
+    assert s["pairs"] == 2
+    assert s["speed_pull_mps"] == pytest.approx(0.2)  # 0.4 m/s over two pairs
+    assert s["speed_pull_pct"] == pytest.approx(1.0)
+    assert s["yaw_rate_pull_dps"] == pytest.approx(-0.25)
+    bands = s["by_range"]
+    assert list(bands) == ["0-10 m", "10-20 m", "20-40 m", "40+ m"]
+    assert bands["0-10 m"]["points_share"] == pytest.approx(2 / 3)
+    assert bands["0-10 m"]["speed_pull_mps"] == pytest.approx(0.2)
+    assert bands["20-40 m"]["yaw_rate_pull_dps"] == pytest.approx(-0.25)
+    assert bands["10-20 m"]["points_share"] == 0.0
+    png = tmp_path / "pull.png"
+    pm.write_png(png, np.full((camera.height, camera.width, 3), 128, np.uint8))
+    img = read_png(png)
+    assert img.shape[:2] == (camera.height, 2 * camera.width)
+    u, v = np.rint(far).astype(int)
+    right = img[:, camera.width :]  # the yaw panel: red (down) at the far point
+    assert right[v, u, 0] > right[v, u, 1] + 100
+    left = img[:, : camera.width]  # the speed panel: green (up) at the near point
+    u, v = np.rint(near).astype(int)
+    assert left[v, u, 1] > left[v, u, 0] + 100
+
+
+def test_pull_map_without_pairs_is_nan():
+    camera, mount = load_camera("omni-near")
+    s = PullMap(camera, mount).summary(20.0)
+    assert (
+        s["pairs"] == 0 and math.isnan(s["speed_pull_mps"]) and math.isnan(s["yaw_rate_pull_dps"])
+    )
+    assert math.isnan(s["by_range"]["0-10 m"]["points_share"])
