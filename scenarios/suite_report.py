@@ -46,6 +46,8 @@ TABLE_METRICS = (
     ("ego.yaw_rate_rmse_dps", "yaw-rate RMSE [deg/s]"),
     ("ego.angle_rmse_deg", "A RMSE [deg]"),
     ("points_above_road.speed_info_share", "speed info above road"),
+    ("point_pull.speed_pull_pct", "speed pull at truth [%]"),
+    ("point_pull.yaw_rate_pull_dps", "yaw pull at truth [deg/s]"),
     ("detection.recall", "recall"),
     ("detection.precision", "precision"),
     ("tracking.mota", "MOTA"),
