@@ -157,6 +157,12 @@ def run(
         f"A RMSE {e['angle_rmse_deg']:.3f} deg; {m['timing']['estimate_ms_per_frame']:.1f} "
         f"ms/frame -> {out}/metrics.json"
     )
+    pull = m.get("point_pull", {})
+    if pull.get("pairs"):
+        console.print(
+            f"the images' pull at the true state: speed {pull['speed_pull_pct']:+.2f} %, yaw rate "
+            f"{pull['yaw_rate_pull_dps']:+.3f} deg/s per pair (where: {out}/pull.png)"
+        )
 
 
 @app.command()

@@ -50,6 +50,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     audit = m["points_above_road"]  # a highway with guard rails: some, not most
     assert audit["frames"] == 23 and audit["inliers"] > 0
     assert 0.0 <= audit["inlier_share"] < 0.5 and 0.0 <= audit["speed_info_share"] < 0.5
+    assert "the images' pull at the true state" in proc.stdout + proc.stderr  # and pull.png
     pull = m["point_pull"]  # the images' pull at the true state: small on a highway
     assert pull["pairs"] >= 20 and abs(pull["speed_pull_pct"]) < 5.0
     assert math.isfinite(pull["yaw_rate_pull_dps"])
