@@ -85,7 +85,7 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -589,6 +589,24 @@ class EgoMotionRecord:
     def A(self) -> np.ndarray:
         """(3,) angular displacement of the actual camera [rad]."""
         return self.x[A_SLICE]
+
+
+class _FineLevel(NamedTuple):
+    """What a fit kept of its finest level for `DirectEstimator.point_pull`: its points'
+    pixels (N, 2) in frame A [px], rays (N, 3), A's brightness (N,), the pair's second
+    frame, the given road mask's off-road flags (N,) or None, A's level pixels (N, 2) for
+    ``flow_noise_frac`` or None, dt [s], labels (N,) and the noise scale s²."""
+
+    level: _Level
+    points_px: np.ndarray
+    rays: np.ndarray
+    a_val: np.ndarray
+    B: _Frame
+    off: np.ndarray | None
+    w_a: np.ndarray | None
+    dt: float
+    labels: np.ndarray
+    s2: float
 
 
 @dataclass
@@ -1259,6 +1277,12 @@ class EgoMotionEstimator:
     def _first_frame(self, gray: np.ndarray, t_s: float, can: float) -> None:
         """Keep what the next step needs from the first frame (subclasses)."""
 
+    def point_pull(self, x: np.ndarray) -> PointPull | None:
+        """What the last pair's points ask of the state x (9,), point by point
+        (`DirectEstimator.point_pull`); None from an estimator whose fit has no such points."""
+        check_state(x, "point_pull x")
+        return None
+
     def _measure(
         self,
         gray: np.ndarray,
@@ -1320,7 +1344,7 @@ class DirectEstimator(EgoMotionEstimator):
         self._chain_end: _Frame | None = None
         self._raised: np.ndarray | None = None  # (H_r, W_r) float32 evidence behind it
         self._gain = 1.0  # brightness gain B -> A of the last linearisation
-        self._fine: tuple | None = None  # the last fit's finest level (`point_pull`)
+        self._fine: _FineLevel | None = None  # the last fit's finest level (`point_pull`)
         self._s2_hist: list[float] = []  # noise scales of the recent good fits
         self._road_prev: np.ndarray | None = None  # given road mask of the previous frame
         self._offroad_given: list[np.ndarray] | None = None  # its exclusions, per level
@@ -1358,26 +1382,27 @@ class DirectEstimator(EgoMotionEstimator):
         x = check_state(x, "point_pull x")
         if self._fine is None:
             return None
-        level, pts, rays, a_val, B, off, w_a, dt, labels, s2 = self._fine
-        cfg, ekf = self.cfg, self.ekf
-        inlier = labels == INLIER
+        f, cfg, ekf = self._fine, self.cfg, self.ekf
+        inlier = f.labels == INLIER
         saved = ekf.x, self._gain
         ekf.x = x
         try:
-            idx, dz, C, R = self._linearise(level, 0, rays, a_val, B, dt, inlier, off, w_a)
+            idx, dz, C, R = self._linearise(
+                f.level, 0, f.rays, f.a_val, f.B, f.dt, inlier, f.off, f.w_a
+            )
         finally:
             ekf.x, self._gain = saved
         use = inlier[idx]
         idx, dz, C, R = idx[use], dz[use], C[use], R[use]
         if cfg.adaptive_noise:
-            R = R * min(max(s2, 0.25), 100.0)
+            R = R * min(max(f.s2, 0.25), 100.0)
         if cfg.independent_points > 0 and len(idx) > cfg.independent_points:
             R = R * (len(idx) / cfg.independent_points)
         CR = C / R[:, None]
         # eq. 18 from x: H⁻¹ Cᵢᵀ Δzᵢ / Rᵢ per point (rows; H symmetric)
         H = ekf.P_prior_inv + C.T @ CR
         dx = (CR * dz[:, None]) @ np.linalg.inv(H)
-        return PointPull(points_px=np.asarray(pts)[idx], dx=dx)
+        return PointPull(points_px=f.points_px[idx], dx=dx)
 
     # -- internals ----------------------------------------------------------------
     def _frame(self, gray: np.ndarray, t_s: float) -> _Frame:
@@ -1875,7 +1900,7 @@ class DirectEstimator(EgoMotionEstimator):
             done_levels += n_it > 0
             if lvl == 0:
                 pts_out, labels_out, noise_scale = level.roi_w[sel], labels, s2
-                fine = (level, pts_out, rays, a_val, B, off, w_a, dt, labels, s2)
+                fine = _FineLevel(level, pts_out, rays, a_val, B, off, w_a, dt, labels, s2)
                 info_out = np.zeros(len(sel))
                 if last is not None:  # the finest level's last linearisation
                     idx, C, R = last

@@ -157,11 +157,12 @@ class PullMap:
         speed, yaw = pull.dx @ self._speed_dir, pull.dx @ self._yaw_dir
         np.add.at(self.speed_map, (v, u), speed)
         np.add.at(self.yaw_map, (v, u), yaw)
-        band = np.searchsorted(RANGE_BANDS_M, self._range_m[v, u], side="right") - 1
-        band = np.clip(band, 0, len(self._band) - 1)
-        for i in range(len(self._band)):
-            m = band == i
-            self._band[i] += (m.sum(), speed[m].sum(), yaw[m].sum())
+        n = len(self._band)
+        band = np.clip(
+            np.searchsorted(RANGE_BANDS_M, self._range_m[v, u], side="right") - 1, 0, n - 1
+        )
+        for j, weights in enumerate((None, speed, yaw)):  # points, speed and yaw pulls
+            self._band[:, j] += np.bincount(band, weights, minlength=n)
         self.pairs += 1
 
     def summary(self, mean_speed_mps: float) -> dict:

@@ -115,8 +115,7 @@ def run_scenario(
     est = make_estimator(estimator, camera, mount)
     surround = SurroundAnalyzer(camera, mount, det_cfg)
     unit_rays = camera_unit_rays(camera) if road_mask else None
-    # where the images pull the estimate off the truth (estimators that can tell)
-    pull = PullMap(camera, mount) if hasattr(est, "point_pull") else None
+    pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
     records, track_rows, eval_det, eval_trk = [], [], [], []
     t_est, t_det = [], []
@@ -139,7 +138,7 @@ def run_scenario(
                 t_det.append(t2 - t1)
             records.append(rec)
             truth = gt[k]["motion_from_prev"]
-            if pull is not None and truth is not None:
+            if truth is not None:  # (None from an estimator that cannot tell)
                 x_true = make_state(truth["V_mps"], truth["W_rps"], truth["A_rad"])
                 pull.add(est.point_pull(x_true))
             if k == still_k:
@@ -221,14 +220,15 @@ def run_scenario(
     return metrics
 
 
-def _point_pull(pull: PullMap | None, series: dict, png: Path, image) -> dict:
-    """metrics.json's "point_pull" section (`PullMap.summary`, NaN for an estimator
-    without `point_pull`) and its picture ``png`` over ``image``."""
-    if pull is None:
-        return {"pairs": 0, "nan_reason": "the estimator has no point_pull"}
-    if pull.pairs and image is not None:
+def _point_pull(pull: PullMap, series: dict, png: Path, image) -> dict:
+    """metrics.json's "point_pull" section (`PullMap.summary`: NaN, with the reason, when
+    no pair told its pull) and its picture ``png`` over ``image``."""
+    summary = pull.summary(float(np.nanmean(series["speed_gt"])))
+    if not pull.pairs:
+        summary["nan_reason"] = "no frame pair told its pull (the estimator cannot, or no fit)"
+    elif image is not None:
         pull.write_png(png, image)
-    return pull.summary(float(np.nanmean(series["speed_gt"])))
+    return summary
 
 
 def _median_ms(ts: list[float]) -> float:

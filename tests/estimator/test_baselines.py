@@ -82,3 +82,17 @@ def test_features_on_textureless_road_keep_the_prior() -> None:
     rec = est.step(flat, 0.3 + DT, 20.0)
     assert rec.degraded and "no-features" in rec.flags
     assert np.array_equal(rec.x, rec.x_prior)
+
+
+@pytest.mark.parametrize("name", ["can-only", "features"])
+def test_baselines_tell_no_point_pull(name: str) -> None:
+    """`EgoMotionEstimator.point_pull`: a baseline's fit has no points to split (None, so
+    the runner's `point_pull` section is NaN with its reason); a bad state is still named."""
+    camera, mount, _ = _camera("omni-near")
+    img_a, img_b, x_true = _pair("omni-near")
+    est = make_estimator(name, camera, mount)
+    est.step(img_a, 0.3, SPEED * CAN_SCALE)
+    est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
+    assert est.point_pull(x_true) is None
+    with pytest.raises(ValueError, match="point_pull x"):
+        est.point_pull(np.full(9, np.nan))
