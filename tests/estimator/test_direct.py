@@ -23,6 +23,7 @@ from estimator.direct import (
     EGO_BODY_BOX_M,
     INLIER,
     OUTLIER,
+    UNUSED,
     DirectConfig,
     DirectEstimator,
     EgoMotionRecord,
@@ -500,12 +501,12 @@ def test_yaw_refit_must_keep_the_road_in_view(monkeypatch, min_fraction, refitte
     real = DirectEstimator._coarse_to_fine
     calls = {"n": 0}
 
-    def refit_loses_the_view(self, A, B, dt, excluded, wide_level=None):
-        res = real(self, A, B, dt, excluded, wide_level)
+    def refit_loses_the_view(self, A, B, dt, excluded, wide_level=None, from_wide=False):
+        res = real(self, A, B, dt, excluded, wide_level, from_wide)
         calls["n"] += 1
         if calls["n"] == 2:  # the refit (own map and retry off)
             n = res["n_points"] // 10
-            res.update(n_points=n, n_inliers=n, noise_scale=0.5)
+            res.update(n_points=n, n_seen=n, n_inliers=n, noise_scale=0.5)
         return res
 
     monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", refit_loses_the_view)
@@ -698,8 +699,8 @@ def _surprising_pair_with_retry(monkeypatch, cfg: DirectConfig, retry_result):
     real = DirectEstimator._coarse_to_fine
     seen = []
 
-    def fake(self, A, B, dt, excluded, wide_level=None):
-        res = real(self, A, B, dt, excluded, wide_level)
+    def fake(self, A, B, dt, excluded, wide_level=None, from_wide=False):
+        res = real(self, A, B, dt, excluded, wide_level, from_wide)
         seen.append(wide_level)
         if wide_level is None:
             res["noise_scale"] = 4.0
@@ -730,30 +731,52 @@ def test_retry_replaces_a_surprising_fit_only_when_much_better(monkeypatch, gain
     assert rec.noise_scale == (2.0 if replaced else 4.0)
 
 
+def _keep_in_view(share: float, inlier_share: float):
+    """A retry result rewrite: the fit keeps ``share`` of its points in view (the rest
+    turned out of B: unused), ``inlier_share`` of those inliers, at noise scale 0.5."""
+
+    def rewrite(res):
+        n = int(res["n_points"] * share)
+        n_in = int(n * inlier_share)
+        labels = res["point_labels"].copy()
+        labels[:] = UNUSED
+        labels[:n_in] = INLIER
+        labels[n_in:n] = OUTLIER
+        res.update(noise_scale=0.5, n_seen=n, n_inliers=n_in, point_labels=labels)
+
+    return rewrite
+
+
 @pytest.mark.parametrize("min_fraction, replaced", [(0.25, False), (0.0, True)])
 def test_retry_must_keep_the_road_in_view(monkeypatch, min_fraction, replaced):
     """A retry's fit whose inliers are fewer than ``min_inlier_fraction`` of the first fit's
     points (the road in view under the prior) is no fit of the road (a wild motion that
     turns the road out of the image fits the few points left): it is not taken however low
-    its noise scale; without the rule (fraction 0) it is."""
-
-    def a_tenth_in_view(res):  # each of the points left fitted well
-        n = res["n_points"] // 10
-        labels = res["point_labels"][:n].copy()
-        labels[:] = INLIER
-        res.update(
-            noise_scale=0.5,
-            n_points=n,
-            n_inliers=n,
-            points_px=res["points_px"][:n],
-            point_labels=labels,
-            point_speed_info=res["point_speed_info"][:n],
-        )
-
+    its noise scale and however well those points fit; without the rule (fraction 0) it is."""
     cfg = default_config("omni", min_inlier_fraction=min_fraction, yaw_jump_sigmas=0.0)
-    rec = _surprising_pair_with_retry(monkeypatch, cfg, a_tenth_in_view)
+    rec = _surprising_pair_with_retry(monkeypatch, cfg, _keep_in_view(0.1, 1.0))
     assert ("manoeuvre" in rec.flags) == replaced
     assert rec.noise_scale == (0.5 if replaced else 4.0)
+
+
+@pytest.mark.parametrize(
+    "inlier_share, seen_fraction, replaced",
+    [(0.6, 0.5, True), (0.6, 0.0, False), (0.4, 0.5, False)],
+)
+def test_retry_counts_inliers_against_what_it_sees(
+    monkeypatch, inlier_share, seen_fraction, replaced
+):
+    """A sharp swerve turns much of the road out of view (held-out rectilinear merge s1,
+    frame 148: 481 of the prior's 1759 points stay in view, 391 of them inliers). A retry
+    that keeps a third of the points in view and fits most of them (``seen_inlier_fraction``)
+    is counted against what it sees and taken; one that fits fewer than that fraction of
+    them, or with the rule off (0), fails for few inliers."""
+    cfg = default_config("omni", seen_inlier_fraction=seen_fraction, yaw_jump_sigmas=0.0)
+    rec = _surprising_pair_with_retry(monkeypatch, cfg, _keep_in_view(0.33, inlier_share))
+    assert ("manoeuvre" in rec.flags) == replaced
+    assert rec.noise_scale == (0.5 if replaced else 4.0)
+    if replaced:
+        assert not rec.degraded and np.sum(rec.point_labels == UNUSED) > 0.5 * len(rec.points_px)
 
 
 def test_rgb_and_float_frames_are_accepted() -> None:
@@ -1241,7 +1264,7 @@ def test_fit_that_contradicts_the_can_is_not_returned() -> None:
     img_a, img_b, _ = _pair("omni-near")
     est, rec = _run("omni-near", img_a, img_b)
     assert "can-contradiction" not in rec.flags
-    fit = {"done_levels": 4, "n_points": 1000, "n_inliers": 900, "noise_scale": 1.0}
+    fit = {"done_levels": 4, "n_points": 1000, "n_seen": 1000, "n_inliers": 900, "noise_scale": 1.0}
     assert est._failure(fit) is None
     est.ekf.x[:3] = -0.1 * est.ekf.x[:3]  # speed reversed: ~-2.7 m/s against a CAN of 27
     flag, reason = est._failure(fit)
