@@ -1501,3 +1501,30 @@ def test_point_pull_is_none_without_a_fit() -> None:
     assert est.point_pull(x_true) is None
     with pytest.raises(ValueError, match="point_pull x"):
         est.point_pull(np.zeros(3))
+
+
+def test_retry_refines_locally_below_its_wide_level(monkeypatch) -> None:
+    """The retry's levels finer than its wide level start with a local grid search (a few
+    steps of ``search_step_px`` about x̂, not the wide prior's width: the coarse level's fit
+    is refined, not searched for again); the first fit's levels search as usual."""
+    calls: list[tuple[int, bool, int | None]] = []
+    real_search, real_ctf = DirectEstimator._search, DirectEstimator._coarse_to_fine
+    wide: list[int | None] = [None]
+
+    def ctf(self, A, B, dt, excluded, wide_level=None, from_wide=False):
+        wide[0] = wide_level
+        return real_ctf(self, A, B, dt, excluded, wide_level, from_wide)
+
+    def search(self, level, lvl, rays, a_val, B, dt, max_steps, n_points, local=False):
+        calls.append((lvl, local, wide[0]))
+        return real_search(self, level, lvl, rays, a_val, B, dt, max_steps, n_points, local)
+
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", ctf)
+    monkeypatch.setattr(DirectEstimator, "_search", search)
+    cfg = default_config("omni", yaw_jump_sigmas=0.0)
+    rec = _surprising_pair_with_retry(monkeypatch, cfg, lambda res: None)
+    local = [(lvl, w) for lvl, is_local, w in calls if is_local]
+    assert local and all(w is not None and lvl < w for lvl, w in local)
+    assert {w for _, w in local} == {lvl for lvl in cfg.manoeuvre_search_levels if lvl > 0}
+    assert all(not is_local for _, is_local, w in calls if w is None)
+    assert "manoeuvre" in rec.flags and not rec.degraded
