@@ -1912,14 +1912,16 @@ class DirectEstimator(EgoMotionEstimator):
             # (whose brightness gain would come from those few points)
             its = cfg.iterations if wide_level is None else cfg.manoeuvre_iterations
             n_max = its[cfg.levels - 1 - lvl] if len(sel) >= cfg.min_points else 0
-            searches = wide_level is None  # the retry's levels iterate from its wide search
-            if n_max and searches and lvl in cfg.search_levels:
-                self._search(level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points)
-            elif n_max and cfg.manoeuvre_local_search and wide_level is not None:
-                if lvl < wide_level:  # (`manoeuvre_local_search`)
-                    self._search(
-                        level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points, True
-                    )
+            # the retry's levels iterate from its wide search, refined below it by a local one
+            if wide_level is None:
+                search = lvl in cfg.search_levels
+            else:
+                search = cfg.manoeuvre_local_search and lvl < wide_level
+            if n_max and search:
+                local = wide_level is not None
+                self._search(
+                    level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points, local
+                )
             s2_ref, best, halvings = math.nan, None, 0
             while n_it < n_max:
                 idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included, off, w_a)
