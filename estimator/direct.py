@@ -1658,10 +1658,15 @@ class DirectEstimator(EgoMotionEstimator):
             for wide_level in cfg.manoeuvre_search_levels:
                 if not 0 <= wide_level < cfg.levels:
                     continue
-                fine_pass = cfg.manoeuvre_fine_passes and wide_level < cfg.levels - 1
-                for from_wide in (False, True) if fine_pass else (False,):
+                coarser = False  # the full pass iterated a level coarser than wide_level
+                for from_wide in (False, True):
+                    # a pass from the wide level itself is the full one again unless that
+                    # iterated a coarser level (which may lack the points to)
+                    if from_wide and not (cfg.manoeuvre_fine_passes and coarser):
+                        break
                     ekf.set_prior(x_prior, wide_prior)
                     r = self._coarse_to_fine(A, B, dt, excl, wide_level, from_wide)
+                    coarser = any(r["iterations"][: cfg.levels - 1 - wide_level])
                     if self._failure(r, first[0]["n_points"]) is None and (
                         best is None or r["noise_scale"] < best[0]["noise_scale"]
                     ):
@@ -1704,7 +1709,6 @@ class DirectEstimator(EgoMotionEstimator):
             ekf.hold_A()
             flags.append("A-held")
         res.pop("done_levels")
-        res.pop("n_seen")
         fine = res.pop("fine")
         self._fine = fine if failure is None else None
         return res
@@ -1813,7 +1817,7 @@ class DirectEstimator(EgoMotionEstimator):
         """
         cfg = self.cfg
         n_pts, n_in = max(res["n_points"], n_view), res["n_inliers"]
-        n_seen = res["n_seen"]
+        n_seen = int(np.count_nonzero(res["point_labels"] != UNUSED))  # landed in B's view
         if (
             cfg.seen_inlier_fraction > 0
             and n_in >= cfg.seen_inlier_fraction * n_seen > 0
@@ -1877,7 +1881,6 @@ class DirectEstimator(EgoMotionEstimator):
         pts_out, labels_out, info_out = np.zeros((0, 2)), np.zeros(0, np.int8), np.zeros(0)
         s2 = noise_scale = math.nan
         fine = None  # the finest level's points and frames, for `point_pull`
-        n_seen = 0
         speed = float((self.R_car_cam @ ekf.x_prior[V_SLICE])[0])
         col_scale = _column_scale(dt, speed)
         if wide_level is not None:
@@ -1971,11 +1974,9 @@ class DirectEstimator(EgoMotionEstimator):
                 info_out = np.zeros(len(sel))
                 if last is not None:  # the finest level's last linearisation
                     idx, C, R = last
-                    n_seen = len(idx)
                     info_out[idx] = (C[:, V_SLICE] @ self.R_car_cam[0]) ** 2 / R
         return {
             "noise_scale": noise_scale,
-            "n_seen": n_seen,
             "n_points": len(pts_out),
             "n_inliers": int(np.sum(labels_out == INLIER)),
             "iterations": tuple(iters),

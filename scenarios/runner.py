@@ -138,7 +138,7 @@ def run_scenario(
                 t_det.append(t2 - t1)
             records.append(rec)
             truth = gt[k]["motion_from_prev"]
-            if truth is not None:  # (None from an estimator that cannot tell)
+            if truth is not None:  # (None on the first frame: no pair yet)
                 x_true = make_state(truth["V_mps"], truth["W_rps"], truth["A_rad"])
                 pull.add(est.point_pull(x_true))
             if k == still_k:

@@ -506,7 +506,10 @@ def test_yaw_refit_must_keep_the_road_in_view(monkeypatch, min_fraction, refitte
         calls["n"] += 1
         if calls["n"] == 2:  # the refit (own map and retry off)
             n = res["n_points"] // 10
-            res.update(n_points=n, n_seen=n, n_inliers=n, noise_scale=0.5)
+            labels = res["point_labels"].copy()
+            labels[:] = UNUSED
+            labels[:n] = INLIER  # a tenth in view, all of it fitting
+            res.update(n_points=n, n_inliers=n, noise_scale=0.5, point_labels=labels)
         return res
 
     monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", refit_loses_the_view)
@@ -742,7 +745,7 @@ def _keep_in_view(share: float, inlier_share: float):
         labels[:] = UNUSED
         labels[:n_in] = INLIER
         labels[n_in:n] = OUTLIER
-        res.update(noise_scale=0.5, n_seen=n, n_inliers=n_in, point_labels=labels)
+        res.update(noise_scale=0.5, n_inliers=n_in, point_labels=labels)
 
     return rewrite
 
@@ -1264,7 +1267,10 @@ def test_fit_that_contradicts_the_can_is_not_returned() -> None:
     img_a, img_b, _ = _pair("omni-near")
     est, rec = _run("omni-near", img_a, img_b)
     assert "can-contradiction" not in rec.flags
-    fit = {"done_levels": 4, "n_points": 1000, "n_seen": 1000, "n_inliers": 900, "noise_scale": 1.0}
+    labels = np.full(1000, INLIER, np.int8)
+    labels[900:] = OUTLIER
+    fit = {"done_levels": 4, "n_points": 1000, "n_inliers": 900, "noise_scale": 1.0}
+    fit["point_labels"] = labels
     assert est._failure(fit) is None
     est.ekf.x[:3] = -0.1 * est.ekf.x[:3]  # speed reversed: ~-2.7 m/s against a CAN of 27
     flag, reason = est._failure(fit)
@@ -1528,3 +1534,31 @@ def test_retry_refines_locally_below_its_wide_level(monkeypatch) -> None:
     assert {w for _, w in local} == {lvl for lvl in cfg.manoeuvre_search_levels if lvl > 0}
     assert all(not is_local for _, is_local, w in calls if w is None)
     assert "manoeuvre" in rec.flags and not rec.degraded
+
+
+def test_retry_passes_from_the_wide_level_only_when_they_differ(monkeypatch) -> None:
+    """A retry pass that starts at its wide level (``manoeuvre_fine_passes``) follows the full
+    pass of that level only when the full pass iterated a level coarser than it; otherwise
+    the two would be the same pass run twice. Here the retry's coarsest level does not
+    iterate (``manoeuvre_iterations`` 0): wide level 2 makes one pass, levels 1 and 0 two."""
+    passes: list[tuple[int | None, bool, tuple[int, ...]]] = []
+    real_ctf = DirectEstimator._coarse_to_fine
+
+    def ctf(self, A, B, dt, excluded, wide_level=None, from_wide=False):
+        res = real_ctf(self, A, B, dt, excluded, wide_level, from_wide)
+        passes.append((wide_level, from_wide, res["iterations"]))
+        return res
+
+    monkeypatch.setattr(DirectEstimator, "_coarse_to_fine", ctf)
+    cfg = default_config("omni", yaw_jump_sigmas=0.0, manoeuvre_iterations=(0, 4, 10, 10))
+    _surprising_pair_with_retry(monkeypatch, cfg, lambda res: None)
+    retry = [(w, fw, its) for w, fw, its in passes if w is not None]
+    assert [(w, fw) for w, fw, _ in retry] == [
+        (2, False),
+        (1, False),
+        (1, True),
+        (0, False),
+        (0, True),
+    ]
+    assert retry[0][2][0] == 0 and retry[1][2][1] > 0  # level 3 idle; level 2 iterated
+    assert retry[2][2][:2] == (0, 0)  # the pass from level 1 skipped levels 3 and 2
