@@ -2,7 +2,9 @@
 
 Frames come from `estimator.synthetic` (textured road, no renderer, nothing from
 sim/): a car at 25 m/s turning at 0.1 rad/s with 0.3 deg of camera vibration at
-15 fps. OpenCV runs on one thread while timing (the target is one core). Both the
+15 fps. OpenCV and the BLAS run on one thread while timing (the target is one core;
+numpy's OpenBLAS would otherwise start a thread per core for the larger matrix products).
+Both the
 wall-clock time and the process CPU time of each step are measured: on a machine
 shared with other work the wall clock includes waiting for a core, the CPU time does
 not (it is what one dedicated core would take).
@@ -14,6 +16,7 @@ import time
 
 import cv2
 import numpy as np
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from estimator.camera_io import load_camera
 from estimator.direct import DirectEstimator, default_config
@@ -27,8 +30,9 @@ def bench_direct(
 
     Returns ms_per_frame (median wall clock), ms_p90, cpu_ms_per_frame (median process
     CPU time), frames, width, height, points and
-    iterations of the last frame, and the median |speed error| [%] against the
-    synthetic truth (25 m/s; the CAN speed given is 8 % high).
+    iterations of the last frame, the median |speed error| [%] against the
+    synthetic truth (25 m/s; the CAN speed given is 8 % high) and blas_threads (the
+    most threads of a thread pool while timing: 1).
     """
     camera, mount = load_camera(camera_name)
     fps, speed = 15.0, 25.0
@@ -44,14 +48,16 @@ def bench_direct(
     cv2.setNumThreads(1)
     times, cpu, errors = [], [], []
     try:
-        for k, img in enumerate(frames):
-            t0, c0 = time.perf_counter(), time.process_time()
-            rec = est.step(img, poses.t_s[k], 1.08 * speed)
-            dt, dc = time.perf_counter() - t0, time.process_time() - c0
-            if k > warmup:
-                times.append(dt)
-                cpu.append(dc)
-                errors.append(abs(rec.speed_mps / speed - 1.0))
+        with threadpool_limits(limits=1):
+            blas_threads = max((p["num_threads"] for p in threadpool_info()), default=1)
+            for k, img in enumerate(frames):
+                t0, c0 = time.perf_counter(), time.process_time()
+                rec = est.step(img, poses.t_s[k], 1.08 * speed)
+                dt, dc = time.perf_counter() - t0, time.process_time() - c0
+                if k > warmup:
+                    times.append(dt)
+                    cpu.append(dc)
+                    errors.append(abs(rec.speed_mps / speed - 1.0))
     finally:
         cv2.setNumThreads(threads)
     ms = 1000.0 * np.asarray(times)
@@ -66,4 +72,5 @@ def bench_direct(
         "points": rec.n_points,
         "iterations": rec.iterations,
         "speed_error_pct": 100.0 * float(np.median(errors)),
+        "blas_threads": blas_threads,
     }

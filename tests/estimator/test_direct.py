@@ -823,6 +823,7 @@ def test_bench_smoke() -> None:
 
     out = bench_direct("omni-far", n_frames=2, warmup=1)
     assert out["frames"] == 2 and out["ms_per_frame"] > 0 and out["speed_error_pct"] < 1.0
+    assert out["blas_threads"] == 1  # one core: no BLAS thread spinning beside it
 
 
 # ---------------------------------------------------------------- rendered drive
