@@ -39,11 +39,45 @@ def _rmse(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
 
 
-def ego_series(est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount) -> dict:
+def exposure_yaw_rates(gt: list[dict], mount: CameraMount, exposure_s: float) -> dict[int, float]:
+    """{frame: yaw rate [deg/s]} between the exposure-mean headings of frame k-1 and k.
+
+    A blurred frame shows the average of the images over its exposure (`sim.sensor`: at
+    `exposure_times`, centred on the frame's time), so what the images can tell is the
+    motion between those averages. The simulator turns the car evenly between frames
+    (`sim.drive.DriveRenderer._moved`): the yaw rate is w_k over (t_k-1, t_k) and steps
+    at each frame. Frame k's mean heading is then off its heading at t_k by ``c (w_k+1 -
+    w_k)``, c = mean(max(tau, 0)) over the exposure's sample times tau (T / 8 for a
+    continuous exposure T; 0 at the first and the last frame, which the simulator
+    extrapolates). A steering step of 80 deg/s moves the motion the images show by
+    1.5 deg/s at 15 fps and 10 ms, on the frames either side of it.
+    """
+    from sim.sensor import exposure_times
+
+    c = float(np.mean(np.maximum(exposure_times(exposure_s), 0.0))) if exposure_s > 0 else 0.0
+    frames = sorted((g for g in gt if g["motion_from_prev"] is not None), key=lambda g: g["frame"])
+    t = {g["frame"]: float(g["t_s"]) for g in gt}
+    yaw_axis = mount.R_car_cam[2]  # yaw rate = (R_car_cam W)_z
+    w = {
+        g["frame"]: float(np.degrees(yaw_axis @ np.asarray(g["motion_from_prev"]["W_rps"])))
+        for g in frames
+    }
+
+    def offset(k: int) -> float:  # [deg] mean heading of frame k minus its heading at t_k
+        return c * (w[k + 1] - w[k]) if k in w and k + 1 in w else 0.0
+
+    return {k: w[k] + (offset(k) - offset(k - 1)) / (t[k] - t[k - 1]) for k in w if k - 1 in t}
+
+
+def ego_series(
+    est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount, exposure_s: float = 0.0
+) -> dict:
     """Aligned time series (frames with both estimate and truth) in car-frame units.
 
     Returns t_s, speed (est, gt, prior) [m/s], yaw rate (est, gt, prior) [deg/s],
-    A (est, gt) (N, 3) [deg].
+    A (est, gt) (N, 3) [deg]; with exposure_s > 0 (the frames' motion blur) also
+    yaw_gt_exposure, the yaw rate between the frames' exposure-mean headings
+    (`exposure_yaw_rates`).
     """
     R = mount.R_car_cam
     by_frame = {g["frame"]: g for g in gt}
@@ -60,6 +94,10 @@ def ego_series(est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount) -
     Wg = np.array([m["W_rps"] for m in g])
     Ag = np.array([m["A_rad"] for m in g])
     prior = np.array([by_frame[int(est["frame"][i])]["can_speed_mps"] for i in rows])
+    extra = {}
+    if exposure_s > 0:
+        w_exp = exposure_yaw_rates(gt, mount, exposure_s)
+        extra["yaw_gt_exposure"] = np.array([w_exp[int(est["frame"][i])] for i in rows])
     return {
         "t_s": est["t_s"][rows],
         "speed_est": (V @ R.T)[:, 0],
@@ -70,6 +108,7 @@ def ego_series(est: dict[str, np.ndarray], gt: list[dict], mount: CameraMount) -
         "yaw_prior": np.zeros(len(rows)),
         "A_est": np.degrees(A),
         "A_gt": np.degrees(Ag),
+        **extra,
     }
 
 
@@ -86,6 +125,10 @@ def ego_metrics(series: dict) -> dict:
         "prior_speed_rmse_mps": _rmse(s["speed_prior"] - s["speed_gt"]),
         "prior_yaw_rate_rmse_dps": _rmse(s["yaw_prior"] - s["yaw_gt"]),
         "prior_angle_rmse_deg": _rmse(s["A_gt"].ravel()),
+        # diagnostic: against the motion the blurred frames show (`exposure_yaw_rates`)
+        "yaw_rate_rmse_exposure_dps": _rmse(s["yaw_est"] - s["yaw_gt_exposure"])
+        if "yaw_gt_exposure" in s
+        else float("nan"),
         "mean_speed_mps": mean_speed,
         "frames_compared": len(s["t_s"]),
     }

@@ -174,7 +174,13 @@ def run_scenario(
             writer.close()
     write_egomotion_csv(out_dir / "egomotion.csv", records, mount)
     _write_tracks_csv(out_dir / "tracks.csv", track_rows)
-    series = ego_series(read_egomotion_csv(out_dir / "egomotion.csv"), gt, mount)
+    sensor = scenario.sensor
+    series = ego_series(
+        read_egomotion_csv(out_dir / "egomotion.csv"),
+        gt,
+        mount,
+        exposure_s=sensor.exposure_s if sensor.motion_blur else 0.0,
+    )
     plot_ego_errors(series, out_dir / "ego_error.png", title=f"{scenario.name} - {estimator}")
     viz.plot_tracks(track_rows, out_dir / "tracks.png", title=f"{scenario.name} - {estimator}")
     est_H = {

@@ -76,6 +76,7 @@ KNOWN_METRICS = (
     "ego.speed_rmse_mps",
     "ego.speed_rmse_pct",
     "ego.yaw_rate_rmse_dps",
+    "ego.yaw_rate_rmse_exposure_dps",
     "ego.angle_rmse_deg",
     "ego.prior_speed_rmse_mps",
     "ego.prior_yaw_rate_rmse_dps",

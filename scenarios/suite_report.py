@@ -44,6 +44,7 @@ TABLE_METRICS = (
     ("ego.speed_rmse_pct", "speed RMSE [%]"),
     ("ego.speed_rmse_mps", "speed RMSE [m/s]"),
     ("ego.yaw_rate_rmse_dps", "yaw-rate RMSE [deg/s]"),
+    ("ego.yaw_rate_rmse_exposure_dps", "yaw-rate RMSE vs exposure means [deg/s]"),
     ("ego.angle_rmse_deg", "A RMSE [deg]"),
     ("points_above_road.speed_info_share", "speed info above road"),
     ("point_pull.speed_pull_pct", "speed pull at truth [%]"),

@@ -32,3 +32,40 @@ def test_nees_of_speed_and_yaw_rate_in_car_axes(preset):
     assert c["speed_nees"] == pytest.approx(4.0)
     assert c["yaw_rate_nees"] == pytest.approx(0.25)
     assert math.isnan(ego_consistency(recs[:1], gt, mount)["speed_nees"])
+
+
+def test_exposure_yaw_rates_are_the_motion_between_mean_headings():
+    """Independent model: the heading turns evenly between frames (the simulator's), each
+    frame's heading averaged over its exposure samples; the rates between those averages.
+    A constant rate is unchanged; a step moves the frames either side of it."""
+    from scenarios.metrics import exposure_yaw_rates
+    from sim.sensor import exposure_times
+
+    _, mount = load_camera("rectilinear-rear-left")
+    dt, T = 1 / 15, 0.01
+    w_dps = np.array([np.nan, -5.0, -5.0, -85.0, -50.0, -30.0, -30.0])  # interval (k-1, k)
+    t = np.arange(len(w_dps)) * dt
+    yaw_rad = np.concatenate([[0.0], np.cumsum(np.radians(w_dps[1:]) * dt)])  # at t_k
+
+    def heading(k: int, tau: float) -> float:  # evenly between frames; the ends extrapolate
+        j = k + 1 if (tau > 0 and k + 1 < len(t)) or k == 0 else k - 1
+        return yaw_rad[k] + tau / (t[j] - t[k]) * (yaw_rad[j] - yaw_rad[k])
+
+    mean = [np.mean([heading(k, tau) for tau in exposure_times(T)]) for k in range(len(t))]
+    expected = np.degrees(np.diff(mean)) / dt
+    R = mount.R_car_cam
+    gt = [{"frame": 0, "t_s": 0.0, "motion_from_prev": None}] + [
+        {
+            "frame": k,
+            "t_s": float(t[k]),
+            "motion_from_prev": {"W_rps": (R.T @ [0, 0, np.radians(w_dps[k])]).tolist()},
+        }
+        for k in range(1, len(t))
+    ]
+    got = exposure_yaw_rates(gt, mount, T)
+    assert np.allclose([got[k] for k in range(1, len(t))], expected, atol=1e-9)
+    assert got[2] == pytest.approx(-5.0 - 0.12 * T * 80 / dt)  # c = 0.12 T: -1.44 deg/s
+    assert got[1] == pytest.approx(-5.0) and got[6] == pytest.approx(-30.0)
+    assert exposure_yaw_rates(gt, mount, 0.0) == pytest.approx(
+        {k: w_dps[k] for k in range(1, len(t))}
+    )
