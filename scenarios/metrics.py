@@ -50,7 +50,10 @@ def exposure_yaw_rates(gt: list[dict], mount: CameraMount, exposure_s: float) ->
     w_k)``, c = mean(max(tau, 0)) over the exposure's sample times tau (T / 8 for a
     continuous exposure T; 0 at the first and the last frame, which the simulator
     extrapolates). A steering step of 80 deg/s moves the motion the images show by
-    1.5 deg/s at 15 fps and 10 ms, on the frames either side of it.
+    1.5 deg/s at 15 fps and 10 ms, on the frames either side of it. The mean image is
+    the mean pose's while the blur is small against the texture; a blur of several
+    pixels (held-out rectilinear merge s1's swerve: -100 deg/s at 20 m/s) leaves its
+    sharpest part to the fit, which then follows the frame-time motion.
     """
     from sim.sensor import exposure_times
 
