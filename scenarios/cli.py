@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -157,6 +158,11 @@ def run(
         f"A RMSE {e['angle_rmse_deg']:.3f} deg; {m['timing']['estimate_ms_per_frame']:.1f} "
         f"ms/frame -> {out}/metrics.json"
     )
+    if math.isfinite(e.get("yaw_rate_rmse_exposure_dps", math.nan)):
+        console.print(
+            f"yaw-rate RMSE against the motion between the frames' exposure means (what the "
+            f"blurred images show): {e['yaw_rate_rmse_exposure_dps']:.3f} deg/s"
+        )
     pull = m.get("point_pull", {})
     if pull.get("pairs"):
         console.print(

@@ -43,6 +43,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     ):
         assert math.isfinite(m["ego"][key]), key
     assert m["ego"]["speed_nees"] > 0 and m["ego"]["yaw_rate_nees"] > 0
+    assert "exposure" in proc.stderr  # the diagnostic is printed beside the RMSEs (console)
     # the CAN prior is 8 % off: the images must pull the speed towards the truth
     assert m["ego"]["speed_rmse_mps"] < m["ego"]["prior_speed_rmse_mps"]
     assert set(m["detection"]) >= {"recall", "precision", "gt_count", "matched"}
