@@ -3,11 +3,10 @@
 Frames come from `estimator.synthetic` (textured road, no renderer, nothing from
 sim/): a car at 25 m/s turning at 0.1 rad/s with 0.3 deg of camera vibration at
 15 fps. OpenCV and the BLAS run on one thread while timing (the target is one core;
-numpy's OpenBLAS would otherwise start a thread per core for the larger matrix products).
-Both the
-wall-clock time and the process CPU time of each step are measured: on a machine
-shared with other work the wall clock includes waiting for a core, the CPU time does
-not (it is what one dedicated core would take).
+numpy's OpenBLAS would otherwise start a thread per core for the larger matrix
+products). Both the wall-clock time and the process CPU time of each step are
+measured: on a machine shared with other work the wall clock includes waiting for a
+core, the CPU time does not (it is what one dedicated core would take).
 """
 
 from __future__ import annotations

@@ -101,7 +101,7 @@ def ego_series(
     extra = {}
     if exposure_s > 0:
         w_exp = exposure_yaw_rates(gt, mount, exposure_s)
-        extra["yaw_gt_exposure"] = np.array([w_exp[int(est["frame"][i])] for i in rows])
+        extra["yaw_gt_exposure"] = np.array([w_exp.get(int(est["frame"][i]), np.nan) for i in rows])
     return {
         "t_s": est["t_s"][rows],
         "speed_est": (V @ R.T)[:, 0],

@@ -40,6 +40,7 @@ DIRECTIONS: dict[str, int] = {
     "ego.speed_rmse_mps": -1,
     "ego.speed_rmse_pct": -1,
     "ego.yaw_rate_rmse_dps": -1,
+    "ego.yaw_rate_rmse_exposure_dps": -1,
     "ego.angle_rmse_deg": -1,
     "localization.median_error_m": -1,
     "localization.p90_error_m": -1,
