@@ -1883,7 +1883,9 @@ class DirectEstimator(EgoMotionEstimator):
         fine = None  # the finest level's points and frames, for `point_pull`
         speed = float((self.R_car_cam @ ekf.x_prior[V_SLICE])[0])
         col_scale = _column_scale(dt, speed)
-        if wide_level is not None:
+        retry = wide_level is not None
+        its = cfg.manoeuvre_iterations if retry else cfg.iterations
+        if retry:
             # the retry: one wide grid search at wide_level, from the prior; all levels then
             # iterate from there (a finer level's search over the retry's wide prior in a
             # few coarse steps would jump out of the basin the wide search found)
@@ -1902,7 +1904,7 @@ class DirectEstimator(EgoMotionEstimator):
                     cfg.manoeuvre_search_points,
                 )
         for lvl in reversed(range(cfg.levels)):
-            if from_wide and wide_level is not None and lvl > wide_level:
+            if from_wide and retry and lvl > wide_level:
                 iters.append(0)
                 continue
             level, sel, rays, a_val, off = self._level_points(lvl, A, B, dt, excluded, col_scale)
@@ -1913,17 +1915,15 @@ class DirectEstimator(EgoMotionEstimator):
             last = None
             # a level with fewer points than a fit needs is skipped before its linearisation
             # (whose brightness gain would come from those few points)
-            its = cfg.iterations if wide_level is None else cfg.manoeuvre_iterations
             n_max = its[cfg.levels - 1 - lvl] if len(sel) >= cfg.min_points else 0
             # the retry's levels iterate from its wide search, refined below it by a local one
-            if wide_level is None:
-                search = lvl in cfg.search_levels
-            else:
+            if retry:
                 search = cfg.manoeuvre_local_search and lvl < wide_level
+            else:
+                search = lvl in cfg.search_levels
             if n_max and search:
-                local = wide_level is not None
                 self._search(
-                    level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points, local
+                    level, lvl, rays, a_val, B, dt, cfg.search_steps, cfg.search_points, retry
                 )
             s2_ref, best, halvings = math.nan, None, 0
             while n_it < n_max:
