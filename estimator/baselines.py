@@ -29,18 +29,12 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from estimator.camera import CameraModel
-from estimator.direct import (
-    EGO_BODY_BOX_M,
-    INLIER,
-    OUTLIER,
-    DirectEstimator,
-    EgoMotionEstimator,
-    default_config,
-    make_config,
-    road_roi,
-)
+from estimator.direct import DirectEstimator
+from estimator.direct_config import EGO_BODY_BOX_M, default_config, make_config
+from estimator.ego_estimator import INLIER, OUTLIER, EgoMotionEstimator
 from estimator.homography import N_STATE, homography
 from estimator.iekf import FilterConfig
+from estimator.levels import road_roi
 from estimator.motion_model import warp_jacobian, warp_pixels
 from estimator.mount import CameraMount
 
@@ -315,7 +309,7 @@ def make_estimator(
 
     Overrides are the fields of the estimator's config dataclass (nested
     ``filter={...}`` for `FilterConfig`); "direct" starts from the camera kind's
-    defaults (`estimator.direct.default_config`).
+    defaults (`estimator.direct_config.default_config`).
     """
     if name not in ESTIMATORS:
         raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")

@@ -18,7 +18,8 @@ import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from estimator.camera_io import load_camera
-from estimator.direct import DirectEstimator, default_config
+from estimator.direct import DirectEstimator
+from estimator.direct_config import default_config
 from estimator.synthetic import RoadTexture, drive_poses, pixel_angle_rad, render_road, to_uint8
 
 

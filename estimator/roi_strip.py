@@ -1,6 +1,6 @@
 """Gaussian windows over values that live on a thin region of interest.
 
-The plane-parallax test (`DirectEstimator._parallax_marks`) blurs images that are zero
+The plane-parallax test (`OffroadMapper._parallax_marks`) blurs images that are zero
 outside the road's region of interest and reads them only inside it. The omni camera's
 ROI is a ring (~45 px wide at 640 px): its bounding box is four times its area. Here the
 ROI is cut into bands of rows, each band into runs of columns, and every run, grown by

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from estimator.camera import CameraModel
-from estimator.direct import INLIER, PointPull
+from estimator.ego_estimator import INLIER, PointPull
 from estimator.fileio import read_png, write_png
 from estimator.geometry import road_distance_m
 from estimator.homography import V_SLICE, W_SLICE

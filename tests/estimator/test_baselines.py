@@ -12,12 +12,13 @@ from estimator.baselines import (
     FeatureEstimator,
     make_estimator,
 )
-from estimator.direct import DirectEstimator, EgoMotionRecord
-from tests.estimator.test_direct import CAN_SCALE, DT, SPEED, _camera, _errors, _pair
+from estimator.direct import DirectEstimator
+from estimator.ego_estimator import EgoMotionRecord
+from tests.estimator.road_pairs import CAN_SCALE, DT, SPEED, preset_camera, road_pair, state_errors
 
 
 def test_registry_builds_each_and_names_unknown_choices() -> None:
-    camera, mount, _ = _camera("omni-near")
+    camera, mount, _ = preset_camera("omni-near")
     assert isinstance(make_estimator("direct", camera, mount), DirectEstimator)
     assert isinstance(make_estimator("can-only", camera, mount), CanOnlyEstimator)
     assert isinstance(make_estimator("features", camera, mount), FeatureEstimator)
@@ -40,8 +41,8 @@ def test_registry_builds_each_and_names_unknown_choices() -> None:
 
 
 def test_can_only_is_dead_reckoning() -> None:
-    camera, mount, _ = _camera("omni-near")
-    img_a, img_b, x_true = _pair("omni-near")
+    camera, mount, _ = preset_camera("omni-near")
+    img_a, img_b, x_true = road_pair("omni-near")
     est = make_estimator("can-only", camera, mount)
     est.step(img_a, 0.3, 20.0)
     rec = est.step(img_b, 0.3 + DT, 20.0)
@@ -56,13 +57,13 @@ def test_can_only_is_dead_reckoning() -> None:
 
 @pytest.mark.parametrize("preset", ["omni-near", "rectilinear-rear-left"])
 def test_features_fit_the_planar_motion(preset: str) -> None:
-    camera, mount, _ = _camera(preset)
-    img_a, img_b, x_true = _pair(preset)
+    camera, mount, _ = preset_camera(preset)
+    img_a, img_b, x_true = road_pair(preset)
     est = make_estimator("features", camera, mount)
     est.step(img_a, 0.3, SPEED * CAN_SCALE)
     rec = est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)
     assert not rec.degraded, rec.reason
-    v_pct, w_dps, a_deg = _errors(rec, x_true)
+    v_pct, w_dps, a_deg = state_errors(rec, x_true)
     print(
         f"features {preset}: {rec.n_inliers}/{rec.n_points} tracks, V {v_pct:.2f} %, "
         f"W {w_dps.round(2)} deg/s, A {a_deg.round(3)} deg"
@@ -74,8 +75,8 @@ def test_features_fit_the_planar_motion(preset: str) -> None:
 
 
 def test_features_on_textureless_road_keep_the_prior() -> None:
-    camera, mount, _ = _camera("omni-near")
-    img_a, _, _ = _pair("omni-near")
+    camera, mount, _ = preset_camera("omni-near")
+    img_a, _, _ = road_pair("omni-near")
     flat = np.where(img_a > 0, 120, 0).astype(np.uint8)
     est = make_estimator("features", camera, mount)
     est.step(flat, 0.3, 20.0)
@@ -88,8 +89,8 @@ def test_features_on_textureless_road_keep_the_prior() -> None:
 def test_baselines_tell_no_point_pull(name: str) -> None:
     """`EgoMotionEstimator.point_pull`: a baseline's fit has no points to split (None, so
     the runner's `point_pull` section is NaN with its reason); a bad state is still named."""
-    camera, mount, _ = _camera("omni-near")
-    img_a, img_b, x_true = _pair("omni-near")
+    camera, mount, _ = preset_camera("omni-near")
+    img_a, img_b, x_true = road_pair("omni-near")
     est = make_estimator(name, camera, mount)
     est.step(img_a, 0.3, SPEED * CAN_SCALE)
     est.step(img_b, 0.3 + DT, SPEED * CAN_SCALE)

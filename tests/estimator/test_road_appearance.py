@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from estimator.camera_io import load_camera
-from estimator.direct import DirectEstimator, build_levels, default_config
+from estimator.direct import DirectEstimator
+from estimator.direct_config import default_config
+from estimator.levels import build_levels
 from estimator.road_appearance import AppearanceConfig, offroad_by_appearance, seed_indices
 
 H, W = 120, 160

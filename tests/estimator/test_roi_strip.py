@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.direct import gaussian_kernel
+from estimator.pyramid import gaussian_kernel
 from estimator.roi_strip import _box, _packed, roi_strip, strip_blur, strip_blur_image
 
 
