@@ -103,6 +103,7 @@ from estimator.ego_estimator import (
     frame_quality,
 )
 from estimator.fast_stats import fast_median, fast_percentile, nan_to_num_fast
+from estimator.geometry import road_distance_m
 from estimator.homography import (
     A_SLICE,
     N_STATE,
@@ -326,6 +327,8 @@ class DirectEstimator(EgoMotionEstimator):
         plane scale lambda is unknown (std ``offroad_depth_sigma``); since D is linear in
         V, the residual's derivative w.r.t. lambda is the one w.r.t. the speed scale,
         ``C V``, and ``(sigma C V)²`` joins R: they tell the rotation, hardly the speed.
+        So do the points whose road hit is farther than ``far_depth_m`` at the
+        ``far_depth_levels`` finest levels.
         """
         cfg, cam, x = self.cfg, self.camera, self.ekf.x
         s = float(level.scale)
@@ -366,6 +369,9 @@ class DirectEstimator(EgoMotionEstimator):
         C = constraint_rows(
             cam, np.take(rays, idx, 0), np.take(P_b, idx, 0), g / s, dh_dx(x, self.K0, dt)
         )
+        if cfg.far_depth_m > 0 and lvl < cfg.far_depth_levels:
+            far = road_distance_m(rays, self.K0) > cfg.far_depth_m
+            off = far if off is None else off | far
         if off is not None and cfg.offroad_depth_sigma > 0:
             lam_var = np.square(cfg.offroad_depth_sigma * (C[:, V_SLICE] @ x[V_SLICE]))
             R = R + np.where(off[idx], lam_var, 0.0)
