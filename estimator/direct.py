@@ -103,7 +103,6 @@ from estimator.ego_estimator import (
     frame_quality,
 )
 from estimator.fast_stats import fast_median, fast_percentile, nan_to_num_fast
-from estimator.geometry import road_distance_m
 from estimator.homography import (
     A_SLICE,
     N_STATE,
@@ -137,7 +136,8 @@ class _FineLevel(NamedTuple):
     """What a fit kept of its finest level for `DirectEstimator.point_pull`: its points'
     pixels (N, 2) in frame A [px], rays (N, 3), A's brightness (N,), the pair's second
     frame, the given road mask's off-road flags (N,) or None, A's level pixels (N, 2) for
-    ``flow_noise_frac`` or None, dt [s], labels (N,) and the noise scale s²."""
+    ``flow_noise_frac`` or None, the ``far_depth_m`` flags (N,) or None, dt [s], labels (N,)
+    and the noise scale s²."""
 
     level: Level
     points_px: np.ndarray
@@ -146,6 +146,7 @@ class _FineLevel(NamedTuple):
     B: Frame
     off: np.ndarray | None
     w_a: np.ndarray | None
+    far: np.ndarray | None
     dt: float
     labels: np.ndarray
     s2: float
@@ -241,7 +242,7 @@ class DirectEstimator(EgoMotionEstimator):
         ekf.x = x
         try:
             idx, dz, C, R = self._linearise(
-                f.level, 0, f.rays, f.a_val, f.B, f.dt, inlier, f.off, f.w_a
+                f.level, 0, f.rays, f.a_val, f.B, f.dt, inlier, f.off, f.w_a, f.far
             )
         finally:
             ekf.x, self._gain = saved
@@ -318,6 +319,7 @@ class DirectEstimator(EgoMotionEstimator):
         included: np.ndarray,
         off: np.ndarray | None = None,
         w_a: np.ndarray | None = None,
+        far: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Steps 1-3 at x̂: (idx (M,) points that land in B, Δz (M,), C (M, 9), R (M,)).
 
@@ -327,8 +329,8 @@ class DirectEstimator(EgoMotionEstimator):
         plane scale lambda is unknown (std ``offroad_depth_sigma``); since D is linear in
         V, the residual's derivative w.r.t. lambda is the one w.r.t. the speed scale,
         ``C V``, and ``(sigma C V)²`` joins R: they tell the rotation, hardly the speed.
-        So do the points whose road hit is farther than ``far_depth_m`` at the
-        ``far_depth_levels`` finest levels.
+        far: (len(rays),) bool, the points whose plane scale is unknown because their road
+        hit is far (`_far_points`): the same noise.
         """
         cfg, cam, x = self.cfg, self.camera, self.ekf.x
         s = float(level.scale)
@@ -369,8 +371,7 @@ class DirectEstimator(EgoMotionEstimator):
         C = constraint_rows(
             cam, np.take(rays, idx, 0), np.take(P_b, idx, 0), g / s, dh_dx(x, self.K0, dt)
         )
-        if cfg.far_depth_m > 0 and lvl < cfg.far_depth_levels:
-            far = road_distance_m(rays, self.K0) > cfg.far_depth_m
+        if far is not None:
             off = far if off is None else off | far
         if off is not None and cfg.offroad_depth_sigma > 0:
             lam_var = np.square(cfg.offroad_depth_sigma * (C[:, V_SLICE] @ x[V_SLICE]))
@@ -728,6 +729,7 @@ class DirectEstimator(EgoMotionEstimator):
                 iters.append(0)
                 continue
             level, sel, rays, a_val, off = self._level_points(lvl, A, B, dt, excluded, col_scale)
+            far = self._far_points(level, lvl, sel)
             w_a = np.take(level.roi_w, sel, 0) / float(level.scale) if cfg.flow_noise_frac else None
             labels = np.full(len(sel), UNUSED, np.int8)
             n_it = 0
@@ -747,7 +749,9 @@ class DirectEstimator(EgoMotionEstimator):
                 )
             s2_ref, best, halvings = math.nan, None, 0
             while n_it < n_max:
-                idx, dz, C, R = self._linearise(level, lvl, rays, a_val, B, dt, included, off, w_a)
+                idx, dz, C, R = self._linearise(
+                    level, lvl, rays, a_val, B, dt, included, off, w_a, far
+                )
                 if len(idx) < cfg.min_points:
                     break
                 last = idx, C, R  # the record's point information (audits) comes from it
@@ -790,7 +794,7 @@ class DirectEstimator(EgoMotionEstimator):
             done_levels += n_it > 0
             if lvl == 0:
                 pts_out, labels_out, noise_scale = level.roi_w[sel], labels, s2
-                fine = _FineLevel(level, pts_out, rays, a_val, B, off, w_a, dt, labels, s2)
+                fine = _FineLevel(level, pts_out, rays, a_val, B, off, w_a, far, dt, labels, s2)
                 info_out = np.zeros(len(sel))
                 if last is not None:  # the finest level's last linearisation
                     idx, C, R = last
@@ -833,6 +837,15 @@ class DirectEstimator(EgoMotionEstimator):
         a_val = A.stacks[lvl][0].ravel()[level.roi_idx[sel]].astype(np.float64)
         off = self._offroad_given[lvl][sel] if self._offroad_given is not None else None
         return level, sel, np.take(level.roi_rays, sel, 0), a_val, off
+
+    def _far_points(self, level: Level, lvl: int, sel: np.ndarray) -> np.ndarray | None:
+        """(len(sel),) bool: the level's points sel whose road hit is farther than
+        ``far_depth_m`` (their plane scale is unknown, `_linearise`), at the
+        ``far_depth_levels`` finest levels; None elsewhere or when off."""
+        cfg = self.cfg
+        if cfg.far_depth_m <= 0 or lvl >= cfg.far_depth_levels:
+            return None
+        return level.road_dist_m[sel] > cfg.far_depth_m
 
     def _excluded(
         self, offroad: np.ndarray | None, look: np.ndarray | None = None

@@ -81,8 +81,9 @@ class Level:
     sel_J: (M, 2, 9) float32 dw/dx of each candidate at the nominal state (V = 1 m/s
     forward, W = A = 0) per unit dt (V, W columns) and per metre of travel (A columns),
     for ranking candidates (`select_points`); to_mask: (M,) flat index of each candidate
-    in the off-road mask grid (set by `DirectEstimator`); roi_rays32: roi_rays in float32
-    (the dense off-road map).
+    in the off-road mask grid (set by `DirectEstimator`); road_dist_m: (M,) horizontal
+    distance of each candidate's road hit [m] (``far_depth_m``); roi_rays32: roi_rays in
+    float32 (the dense off-road map).
     """
 
     scale: int
@@ -93,6 +94,7 @@ class Level:
     valid_b: np.ndarray
     sel_J: np.ndarray
     to_mask: np.ndarray | None = None
+    road_dist_m: np.ndarray | None = None
     roi_rays32: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -142,6 +144,7 @@ def build_levels(camera: CameraModel, mount: CameraMount, cfg: DirectConfig) -> 
                 rays[keep],
                 clean,
                 selection_jacobian(camera, mount, rays[keep]),
+                road_dist_m=road_distance_m(rays[keep], mount.K0),
             )
         )
     return out
