@@ -295,6 +295,10 @@ class DirectConfig:
             raise ValueError(
                 f"direct.parallax_baseline_m must be >= 0 [m], got {self.parallax_baseline_m!r}"
             )
+        if not (math.isfinite(self.far_depth_m) and self.far_depth_m >= 0):
+            raise ValueError(
+                f"direct.far_depth_m must be finite and >= 0 [m] (0: off), got {self.far_depth_m!r}"
+            )
         if self.parallax_baseline_frames < 1:
             raise ValueError(
                 f"direct.parallax_baseline_frames must be >= 1, got {self.parallax_baseline_frames}"

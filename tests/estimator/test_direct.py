@@ -799,6 +799,9 @@ def test_config_errors_name_the_key() -> None:
         default_config("omni", parallax_baseline_m=float("nan"))
     with pytest.raises(ValueError, match=r"direct\.parallax_baseline_frames"):
         default_config("omni", parallax_baseline_frames=0)
+    for bad in (float("nan"), -5.0):
+        with pytest.raises(ValueError, match=r"direct\.far_depth_m must be finite and >= 0"):
+            default_config("pinhole", far_depth_m=bad)
 
 
 def test_bench_smoke() -> None:
