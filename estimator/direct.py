@@ -418,7 +418,6 @@ class DirectEstimator(EgoMotionEstimator):
         prev_map = self._offroad
         excl = self._excluded(prev_map, look) if cfg.offroad_mask else None
         self._offroad = None
-        raised, self.offroad.raised = self.offroad.raised, None
         res = self._coarse_to_fine(A, B, dt, excl)
         failure = self._failure(res)
         if (
@@ -516,13 +515,11 @@ class DirectEstimator(EgoMotionEstimator):
         elif cfg.offroad_mask and not unusual:
             # only a fit at the usual noise level says what is off the road: the
             # residuals of a poorer one would keep the next pair off the road itself
-            self._offroad = self.offroad.map(
-                A, B, ekf.x, dt, self._gain, res["noise_scale"], raised=raised
-            )
+            self._offroad = self.offroad.map(A, B, ekf.x, dt, self._gain, res["noise_scale"])
             self._carried = self._offroad, 0
-        if failure is None and cfg.parallax_baseline_m > 0:
+        if failure is None:
             self.offroad.remember(A, B, ekf.x, dt, self._gain)
-        elif failure is not None:
+        else:
             self.offroad.forget()
         if self._offroad is None and self._carried is not None:
             self._offroad = self._carry_map(flags)

@@ -58,9 +58,11 @@ class OffroadMapper:
 
     Holds what depends on the camera (the blur strips of the parallax test, the evidence
     cells) and what carries over from frame to frame: the raised-structure evidence of
-    the last frame mapped (``raised``, (H_r, W_r) float32 or None) and the chain of the
-    last well-fitted consecutive pairs (``chain``: first frame (`_slim`), x, dt, gain,
-    oldest first; ``chain_end``: the last one's second frame), the baseline of slow pairs.
+    the last frame mapped forward (``raised``, (H_r, W_r) float32 or None; ``raised_of``,
+    that frame), which the next pair carries on only if its first frame is that one, and
+    the chain of the last well-fitted consecutive pairs (``chain``: first frame (`_slim`),
+    x, dt, gain, oldest first; ``chain_end``: the last one's second frame), the baseline
+    of slow pairs.
     """
 
     def __init__(
@@ -80,6 +82,7 @@ class OffroadMapper:
         self.chain: list[tuple[Frame, np.ndarray, float, float]] = []
         self.chain_end: Frame | None = None
         self.raised: np.ndarray | None = None
+        self.raised_of: Frame | None = None
 
     def map(
         self,
@@ -90,7 +93,6 @@ class OffroadMapper:
         gain: float,
         s2: float,
         backward: bool = False,
-        raised: np.ndarray | None = None,
         residuals: bool = True,
     ) -> np.ndarray:
         """(H_m, W_m) uint8: pixels of frame B that the estimated road motion does not explain.
@@ -154,13 +156,19 @@ class OffroadMapper:
             if plvl != lvl:
                 marks = cv2.resize(marks, (wm, hm), interpolation=cv2.INTER_NEAREST)
             if cfg.raised_memory > 0 and not backward:
+                # A's evidence, if A was the last frame mapped forward
+                raised = self.raised if self.raised_of is A else None
                 marks |= self._raised_cells(*textured, x, dt, marks, raised)
+                self.raised_of = B
             out |= marks
         return out
 
     def remember(self, A: Frame, B: Frame, x: np.ndarray, dt: float, gain: float) -> None:
         """Add the well-fitted pair (A, B) (state x (9,), dt [s], brightness gain B -> A) to
-        the chain of the plane-parallax baseline (``parallax_baseline_frames`` - 1 kept)."""
+        the chain of the plane-parallax baseline (``parallax_baseline_frames`` - 1 kept;
+        none without ``parallax_baseline_m``)."""
+        if self.cfg.parallax_baseline_m <= 0:
+            return
         keep = self.cfg.parallax_baseline_frames - 1
         entry = (self._slim(A), x.copy(), dt, gain)
         self.chain = (self.chain_to(A) + [entry])[-keep:] if keep else []

@@ -277,8 +277,8 @@ def test_pinhole_first_map_is_the_parallax_tests_alone() -> None:
         maps = []
         real = est.offroad.map
 
-        def spy(A, B, x, dt, gain, s2, backward=False, raised=None, real=real, maps=maps, **kw):
-            out = real(A, B, x, dt, gain, s2, backward, raised, **kw)
+        def spy(A, B, x, dt, gain, s2, backward=False, real=real, maps=maps, **kw):
+            out = real(A, B, x, dt, gain, s2, backward, **kw)
             if backward:
                 maps.append(out)
             return out

@@ -9,6 +9,7 @@ import pytest
 
 from estimator.direct import DirectEstimator
 from estimator.direct_config import DirectConfig, default_config
+from estimator.ego_estimator import to_gray
 from estimator.homography import homography, make_state
 from estimator.offroad_map import OffroadMapper, composed_homography
 from tests.estimator.road_pairs import (
@@ -204,3 +205,36 @@ def test_raised_evidence_keeps_structure_the_parallax_test_misses_in_a_frame() -
     print(f"core {core:.2f} (no memory {core0:.2f}), far {far:.3f} ({far0:.3f})")
     assert core > core0 + 0.3
     assert far <= far0 + 0.005
+
+
+def test_raised_evidence_carries_only_to_the_pair_that_starts_at_its_frame(monkeypatch) -> None:
+    """The evidence a forward map leaves belongs to its second frame: the next map carries
+    it along its motion only when its first frame is that one (not after a pair that did
+    not map, e.g. a bad frame), and a map of another frame starts from none."""
+    preset = "omni-near"
+    camera, mount, _ = preset_camera(preset)
+    f0, f1, _ = road_pair(preset, 0, 0.3)
+    f2 = road_pair(preset, 0, 0.3 + DT)[1]
+    est = DirectEstimator(camera, mount, default_config("omni", raised_memory=0.7))
+    est.step(f0, 0.3, SPEED * CAN_SCALE)
+    est.step(f1, 0.3 + DT, SPEED * CAN_SCALE)
+    mapper = est.offroad
+    B1 = est._prev  # frame 1, mapped forward by the first pair
+    assert mapper.raised is not None and mapper.raised_of is B1
+    given = []
+    cells = mapper._raised_cells
+
+    def spy(tex, idx, x, dt, marks, raised):
+        given.append(raised)
+        return cells(tex, idx, x, dt, marks, raised)
+
+    monkeypatch.setattr(mapper, "_raised_cells", spy)
+    B2 = est._frame(to_gray(f2, (camera.height, camera.width)), 0.3 + 2 * DT)
+    x = est.ekf.x
+    mapper.map(B1, B2, x, DT, 1.0, 1.0)  # the pair that starts at frame 1
+    assert given[-1] is not None and mapper.raised_of is B2
+    other = est._frame(to_gray(f0, (camera.height, camera.width)), 0.3 + 3 * DT)
+    mapper.map(other, B1, x, DT, 1.0, 1.0)  # its first frame is not frame 2
+    assert given[-1] is None
+    mapper.map(B1, B2, x, DT, 1.0, 1.0, backward=True)  # backward maps neither use nor store it
+    assert len(given) == 2 and mapper.raised_of is B1
