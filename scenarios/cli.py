@@ -155,8 +155,8 @@ def run(
         f"{sc.name} [{estimator}] speed RMSE {e['speed_rmse_mps']:.3f} m/s "
         f"({e['speed_rmse_pct']:.2f} %, prior {e['prior_speed_rmse_mps']:.3f}), yaw-rate RMSE "
         f"{e['yaw_rate_rmse_dps']:.3f} deg/s (prior {e['prior_yaw_rate_rmse_dps']:.3f}), "
-        f"A RMSE {e['angle_rmse_deg']:.3f} deg; {m['timing']['estimate_ms_per_frame']:.1f} "
-        f"ms/frame -> {out}/metrics.json"
+        f"A roll/pitch RMSE {e['angle_rmse_deg']:.3f} deg; "
+        f"{m['timing']['estimate_ms_per_frame']:.1f} ms/frame -> {out}/metrics.json"
     )
     if math.isfinite(e.get("yaw_rate_rmse_exposure_dps", math.nan)):
         console.print(

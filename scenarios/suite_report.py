@@ -45,7 +45,7 @@ TABLE_METRICS = (
     ("ego.speed_rmse_mps", "speed RMSE [m/s]"),
     ("ego.yaw_rate_rmse_dps", "yaw-rate RMSE [deg/s]"),
     ("ego.yaw_rate_rmse_exposure_dps", "yaw-rate RMSE vs exposure means [deg/s]"),
-    ("ego.angle_rmse_deg", "A RMSE [deg]"),
+    ("ego.angle_rmse_deg", "A roll/pitch RMSE [deg]"),
     ("points_above_road.speed_info_share", "speed info above road"),
     ("point_pull.speed_pull_pct", "speed pull at truth [%]"),
     ("point_pull.yaw_rate_pull_dps", "yaw pull at truth [deg/s]"),
