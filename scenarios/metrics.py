@@ -152,13 +152,16 @@ def ego_metrics(series: dict) -> dict:
 
 
 def ego_consistency(records: list, gt: list[dict], mount: CameraMount) -> dict:
-    """Mean NEES of the forward speed and the yaw rate: error² over the estimator's own
-    variance (its full P, car axes), over the frames with truth; about 1 when the
-    covariance the estimator prints is honest, much larger when it is overconfident."""
+    """Mean NEES of the forward speed, the yaw rate and A's roll and pitch: error² over the
+    estimator's own variance (its full P, car axes), over the frames with truth; about 1
+    when the covariance the estimator prints is honest, much larger when it is
+    overconfident. The roll/pitch NEES is ``eᵀ S⁻¹ e / 2`` (2 dof) with S the 2 x 2 block
+    of A's covariance in car axes."""
     R = mount.R_car_cam
     h_v, h_w = R[0], R[2]  # forward speed = h_v . V, yaw rate = h_w . W
+    H_a = R[:2]  # (roll, pitch) = H_a A
     by_frame = {g["frame"]: g for g in gt}
-    nv, nw = [], []
+    nv, nw, na = [], [], []
     for rec in records:
         g = by_frame.get(int(rec.frame))
         if g is None or g["motion_from_prev"] is None or not np.all(np.isfinite(rec.x)):
@@ -168,7 +171,10 @@ def ego_consistency(records: list, gt: list[dict], mount: CameraMount) -> dict:
         ew = float(h_w @ (rec.x[3:6] - np.asarray(m["W_rps"])))
         nv.append(ev**2 / float(h_v @ rec.P[0:3, 0:3] @ h_v))
         nw.append(ew**2 / float(h_w @ rec.P[3:6, 3:6] @ h_w))
-    return {"speed_nees": _mean(nv), "yaw_rate_nees": _mean(nw)}
+        if "A_rad" in m:
+            ea = H_a @ (rec.x[6:9] - np.asarray(m["A_rad"]))
+            na.append(float(ea @ np.linalg.solve(H_a @ rec.P[6:9, 6:9] @ H_a.T, ea)) / 2.0)
+    return {"speed_nees": _mean(nv), "yaw_rate_nees": _mean(nw), "angle_nees": _mean(na)}
 
 
 def _mean(values: list[float]) -> float:

@@ -13,24 +13,30 @@ from scenarios.metrics import ego_consistency
 @pytest.mark.parametrize("preset", ["omni-near", "rectilinear-rear-left"])
 def test_nees_of_speed_and_yaw_rate_in_car_axes(preset):
     """Errors of 0.2 m/s forward and 0.01 rad/s of yaw rate against stds of 0.1 and 0.02
-    in car axes: NEES 4 and 0.25, whatever the camera's mount."""
+    in car axes: NEES 4 and 0.25, whatever the camera's mount. A's roll off by 2 std and
+    its pitch by 1 (its yaw, off by 10 std, is not in it): (4 + 1) / 2 dof = 2.5."""
     _, mount = load_camera(preset)
     R = mount.R_car_cam
     V_true, W_true = R.T @ np.array([20.0, 0.0, 0.0]), R.T @ np.array([0.0, 0.0, 0.1])
+    A_true = R.T @ np.radians([0.2, -0.1, 0.0])
     x = np.concatenate(
-        [R.T @ np.array([20.2, 0.0, 0.0]), R.T @ np.array([0.0, 0.0, 0.11]), [0, 0, 0]]
+        [
+            R.T @ np.array([20.2, 0.0, 0.0]),
+            R.T @ np.array([0.0, 0.0, 0.11]),
+            A_true + R.T @ np.radians([0.1, 0.1, 0.5]),
+        ]
     )
     P = np.eye(9)
     P[0:3, 0:3] = R.T @ np.diag([0.1**2, 1.0, 1.0]) @ R
     P[3:6, 3:6] = R.T @ np.diag([1.0, 1.0, 0.02**2]) @ R
-    gt = [
-        {"frame": 0, "motion_from_prev": None},
-        {"frame": 1, "motion_from_prev": {"V_mps": V_true.tolist(), "W_rps": W_true.tolist()}},
-    ]
+    P[6:9, 6:9] = R.T @ np.diag(np.radians([0.05, 0.1, 0.05]) ** 2) @ R
+    motion = {"V_mps": V_true.tolist(), "W_rps": W_true.tolist(), "A_rad": A_true.tolist()}
+    gt = [{"frame": 0, "motion_from_prev": None}, {"frame": 1, "motion_from_prev": motion}]
     recs = [SimpleNamespace(frame=0, x=x, P=P), SimpleNamespace(frame=1, x=x, P=P)]
     c = ego_consistency(recs, gt, mount)
     assert c["speed_nees"] == pytest.approx(4.0)
     assert c["yaw_rate_nees"] == pytest.approx(0.25)
+    assert c["angle_nees"] == pytest.approx(2.5)
     assert math.isnan(ego_consistency(recs[:1], gt, mount)["speed_nees"])
 
 
