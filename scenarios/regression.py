@@ -42,6 +42,8 @@ DIRECTIONS: dict[str, int] = {
     "ego.yaw_rate_rmse_dps": -1,
     "ego.yaw_rate_rmse_exposure_dps": -1,
     "ego.angle_rmse_deg": -1,
+    "ego.roll_rmse_deg": -1,
+    "ego.pitch_rmse_deg": -1,
     "localization.median_error_m": -1,
     "localization.p90_error_m": -1,
     "tracking.id_switches": -1,
