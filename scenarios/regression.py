@@ -44,6 +44,7 @@ DIRECTIONS: dict[str, int] = {
     "ego.angle_rmse_deg": -1,
     "ego.roll_rmse_deg": -1,
     "ego.pitch_rmse_deg": -1,
+    "ego.angle_yaw_rmse_deg": -1,
     "localization.median_error_m": -1,
     "localization.p90_error_m": -1,
     "tracking.id_switches": -1,
