@@ -43,7 +43,9 @@ For each new frame B (previous frame A)::
     ``offroad-map-dropped``): a road is not textureless because of a map; a coarse
     level it leaves too few selects without it (``coarse_without_map``)
     with ``first_fit_A`` off (the pinhole's setting), the first fit's A is dropped: A
-    stays at the mount with its process's stationary std (flag ``A-held``)
+    stays at the mount with its process's stationary std (flag ``A-held``); with
+    ``fit_A`` off (the pinhole's setting too), so is every later fit's: A is then the
+    integral of the measured roll/pitch rates
 
 Points: pixels of A in the road region of interest (valid camera ray, hitting
 the road below the horizon within ``max_range_m`` of the car, not through the
@@ -526,6 +528,8 @@ class DirectEstimator(EgoMotionEstimator):
         if first_fit and not cfg.first_fit_A:
             ekf.hold_A()
             flags.append("A-held")
+        elif failure is None and not cfg.fit_A:
+            ekf.hold_A()  # A is the integral of the rates: the fit's tilt is dropped
         res.pop("done_levels")
         fine = res.pop("fine")
         self._fine = fine if failure is None else None
@@ -580,21 +584,37 @@ class DirectEstimator(EgoMotionEstimator):
         ``yaw_jump_widen`` x |d| (with the sideways speed it drags at the camera's lever
         arm) from the same prior mean: the images then tell the new rate. Kept when it
         does not fail; the prior widened is then the record's prior (flag ``yaw-jump``).
+        A refit that moved the rate by more than half again its widened std (the step is
+        larger than the first shift said) is refitted with the std its own shift asks
+        for, up to ``yaw_jump_rounds`` refits, each kept when it does not fail (as the
+        first refit is).
         """
         cfg, ekf = self.cfg, self.ekf
         shift, sd = self._yaw_shift()
         if abs(shift) <= cfg.yaw_jump_sigmas * max(sd, 1e-9):
             return res
-        first = res, ekf.x.copy(), ekf.P.copy()
         x_prior, P_prior = ekf.x_prior.copy(), ekf.P_prior.copy()
-        wide = P_prior + self._yaw_cov(cfg.yaw_jump_widen * abs(shift))
-        ekf.set_prior(x_prior, wide)
-        r = self._coarse_to_fine(A, B, dt, excl)
-        if self._failure(r, res["n_points"]) is None:
+        n_view = res["n_points"]
+        best = res, ekf.x.copy(), ekf.P.copy(), P_prior
+        refitted = False
+        sigma = cfg.yaw_jump_widen * abs(shift)
+        for _ in range(max(cfg.yaw_jump_rounds, 1)):
+            wide = P_prior + self._yaw_cov(sigma)
+            ekf.set_prior(x_prior, wide)
+            r = self._coarse_to_fine(A, B, dt, excl)
+            if self._failure(r, n_view) is not None:
+                break
+            best, refitted = (r, ekf.x.copy(), ekf.P.copy(), wide), True
+            shift = float(self.R_car_cam[2] @ (ekf.x[W_SLICE] - x_prior[W_SLICE]))
+            if cfg.yaw_jump_widen * abs(shift) <= 1.5 * sigma:
+                break
+            sigma = cfg.yaw_jump_widen * abs(shift)
+        res, x, P, prior_P = best
+        # the record's prior: the widened one of the refit kept (the fit's own when none)
+        ekf.set_prior(x_prior, prior_P)  # (resets x̂ to the prior mean: set it after)
+        ekf.x, ekf.P = x, P
+        if refitted:
             flags.append("yaw-jump")
-            return r
-        ekf.set_prior(x_prior, P_prior)  # (resets x̂ to the prior mean: before the fit)
-        res, ekf.x, ekf.P = first
         return res
 
     def _yaw_cov(self, sigma_rps: float) -> np.ndarray:

@@ -293,6 +293,7 @@ class EgoMotionEstimator:
             self._v_can = v_can
         if self.mount.lever_arm_m is not None:  # kinematic model: no side slip at the axle
             self.ekf.fuse_nonholonomic(self.mount.lever_arm_m)
+        self.ekf.fuse_vertical()  # nor leaves the road plane
         self.ekf.begin_update()
         extra = self._measure(gray, t_s, dt, flags, reasons, compensate)
         rec = make_record(

@@ -80,6 +80,9 @@ class FilterConfig:
     can_abs_sigma_mps: float = 0.3  # [m/s] absolute std (noise, quantisation)
     nonholonomic_sigma_mps: float = 0.2  # [m/s] sideways speed of the rear axle (tyre
     # slip) in the kinematic pseudo-measurement (`nonholonomic_update`); <= 0: off
+    vertical_speed_sigma_mps: float = 0.0  # [m/s] the camera's speed along the road normal
+    # (the body's heave on its suspension) in the pseudo-measurement of a car that stays on
+    # the road (`vertical_speed_update`); <= 0: off
     can_gate_rel: float = 0.3  # [-] a CAN speed that disagrees with the predicted forward
     # speed by more than this fraction (plus 3 sigma) means the state is lost: V and the
     # yaw rate are re-initialised from the CAN (`can_consistent`); <= 0: never
@@ -202,6 +205,21 @@ def nonholonomic_update(
     hardly tells apart.
     """
     return scalar_update(x, P, nonholonomic_row(lever_m, R_car_cam), 0.0, sigma_mps**2)
+
+
+def vertical_speed_update(
+    x: np.ndarray, P: np.ndarray, K0: np.ndarray, sigma_mps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-measurement of a car that stays on the road: the camera does not move along
+    the road normal n (``n . V = 0`` with std ``sigma_mps``, the body's heave).
+
+    On a narrow view of the road (a pinhole's one lane) a speed along the normal moves
+    the points much as a tilt of the plane and a roll rate do; the car's kinematics
+    tell it where the images hardly can.
+    """
+    h = np.zeros(N_STATE)
+    h[V_SLICE] = np.asarray(K0, dtype=float) / np.linalg.norm(K0)
+    return scalar_update(x, P, h, 0.0, sigma_mps**2)
 
 
 def can_row(R_car_cam: np.ndarray, offset_y_m: float = 0.0) -> np.ndarray:
@@ -436,6 +454,14 @@ class IteratedEKF:
         if self.cfg.nonholonomic_sigma_mps > 0:
             self.x, self.P = nonholonomic_update(
                 self.x, self.P, lever_m, self.R_car_cam, self.cfg.nonholonomic_sigma_mps
+            )
+
+    def fuse_vertical(self) -> None:
+        """The camera does not leave the road plane (`vertical_speed_update`), when
+        configured."""
+        if self.cfg.vertical_speed_sigma_mps > 0:
+            self.x, self.P = vertical_speed_update(
+                self.x, self.P, self.K0, self.cfg.vertical_speed_sigma_mps
             )
 
     def inflate(self, factor: float) -> None:

@@ -320,6 +320,42 @@ def test_nonholonomic_update_ties_the_sideways_speed_to_the_yaw_rate() -> None:
     assert np.allclose(scalar_update(x, P, h, 0.0, 1e-4)[0], x1)
 
 
+def test_vertical_speed_update_keeps_the_camera_on_the_road_plane() -> None:
+    """The pseudo-measurement of a car that stays on the road: the camera's speed along the
+    road normal (the car's z in car axes) is pulled to 0 in proportion to the prior's
+    variances, the same as filterpy's Kalman update with H = (n, 0, 0); off (std <= 0) it
+    leaves the state alone."""
+    from estimator.iekf import vertical_speed_update
+
+    mount = CameraMount(position_m=(0.3, 0.95, 1.2), yaw_deg=160, pitch_deg=15, base="pinhole")
+    Rc, K0 = mount.R_car_cam, mount.K0
+    x = np.zeros(9)
+    x[0:3] = Rc.T @ np.array([20.0, 0.0, -0.4])  # sinking at 0.4 m/s
+    x[6:9] = 0.002
+    P = np.diag([1.0, 1.0, 1.0, 0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4])
+    P[2, 8] = P[8, 2] = 0.005  # correlated with A: A moves with it
+    x1, P1 = vertical_speed_update(x, P, K0, sigma_mps=0.01)
+    assert (Rc @ x1[0:3])[2] == pytest.approx(0.0, abs=0.01)
+    assert (Rc @ x1[0:3])[0] == pytest.approx(20.0, abs=0.05)  # the forward speed stays
+    assert x1[8] != x[8] and np.array_equal(x1[3:6], x[3:6])
+    assert np.all(np.linalg.eigvalsh(P1) > 0) and np.trace(P1) < np.trace(P)
+    h = np.zeros(9)
+    h[0:3] = K0 / np.linalg.norm(K0)
+    kf = KalmanFilter(dim_x=9, dim_z=1)
+    kf.x, kf.P, kf.H, kf.R = x.copy(), P.copy(), h[None, :], np.array([[1e-4]])
+    kf.update(np.array([0.0]))
+    assert np.allclose(kf.x, x1) and np.allclose(kf.P, P1)
+    # the filter's switch: off by default, on where configured
+    ekf = IteratedEKF(FilterConfig(), Rc, K0)
+    ekf.x, ekf.P = x.copy(), P.copy()
+    ekf.fuse_vertical()
+    assert np.array_equal(ekf.x, x) and np.array_equal(ekf.P, P)
+    ekf = IteratedEKF(FilterConfig(vertical_speed_sigma_mps=0.01), Rc, K0)
+    ekf.x, ekf.P = x.copy(), P.copy()
+    ekf.fuse_vertical()
+    assert np.allclose(ekf.x, x1) and np.allclose(ekf.P, P1)
+
+
 @pytest.mark.parametrize("base", ["omni", "pinhole"])
 def test_yaw_direction_is_a_car_yaw_that_keeps_the_rear_axle_straight(base: str) -> None:
     """A unit step along yaw_direction is 1 rad/s of car yaw rate, moves the viewpoint
