@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from estimator.camera import CameraModel
+from estimator.geometry import road_normal
 from estimator.homography import homography
 from estimator.motion_model import map_rays
 from estimator.mount import CameraMount
@@ -64,7 +65,7 @@ class FrameCompensator:
                 f"{exact_below_deg}"
             )
         self.camera, self.mount, self.K0 = camera, mount, np.asarray(mount.K0, float)
-        self.n = self.K0 / np.linalg.norm(self.K0)  # unit road normal (down) in camera axes
+        self.n = road_normal(self.K0)  # unit road normal (down) in camera axes
         self.grid_px = int(grid_px)
         self._lo = float(np.sin(np.radians(min_depression_deg)))
         self._exact = float(np.sin(np.radians(exact_below_deg)))

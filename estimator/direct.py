@@ -598,14 +598,14 @@ class DirectEstimator(EgoMotionEstimator):
         best = res, ekf.x.copy(), ekf.P.copy(), P_prior
         refitted = False
         sigma = cfg.yaw_jump_widen * abs(shift)
-        for _ in range(max(cfg.yaw_jump_rounds, 1)):
+        for _ in range(cfg.yaw_jump_rounds):
             wide = P_prior + self._yaw_cov(sigma)
             ekf.set_prior(x_prior, wide)
             r = self._coarse_to_fine(A, B, dt, excl)
             if self._failure(r, n_view) is not None:
                 break
             best, refitted = (r, ekf.x.copy(), ekf.P.copy(), wide), True
-            shift = float(self.R_car_cam[2] @ (ekf.x[W_SLICE] - x_prior[W_SLICE]))
+            shift = self._yaw_shift()[0]  # (from the same prior mean)
             if cfg.yaw_jump_widen * abs(shift) <= 1.5 * sigma:
                 break
             sigma = cfg.yaw_jump_widen * abs(shift)

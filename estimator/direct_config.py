@@ -290,6 +290,11 @@ class DirectConfig:
     def __post_init__(self) -> None:
         if self.levels < 1:
             raise ValueError(f"direct.levels must be >= 1, got {self.levels}")
+        if self.yaw_jump_rounds < 1:
+            raise ValueError(
+                f"direct.yaw_jump_rounds must be >= 1 (no refit: yaw_jump_sigmas 0), "
+                f"got {self.yaw_jump_rounds}"
+            )
         for name in ("iterations", "manoeuvre_iterations"):
             if len(getattr(self, name)) != self.levels:
                 raise ValueError(

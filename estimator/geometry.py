@@ -65,11 +65,17 @@ def invert_T(T: np.ndarray) -> np.ndarray:
     return make_T(R.T, -R.T @ t)
 
 
+def road_normal(K0: np.ndarray) -> np.ndarray:
+    """(3,) unit normal of the road plane K0 (3,) (``K0ᵀ P = 1`` on the road, [1/m])."""
+    K0 = np.asarray(K0, dtype=float)
+    return K0 / np.linalg.norm(K0)
+
+
 def road_distance_m(rays: np.ndarray, K0: np.ndarray) -> np.ndarray:
     """(N,) horizontal distance [m] from the viewpoint to where unit rays (N, 3) hit the road
     plane K0 (3,) (``K0ᵀ P = 1`` on the road, [1/m]); inf or negative for rays that do not."""
     kr = rays @ K0
-    n = K0 / np.linalg.norm(K0)
+    n = road_normal(K0)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = 1.0 / kr  # range along the unit ray to the road [m]
         return t * np.sqrt(np.maximum(1.0 - (rays @ n) ** 2, 0.0))

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimator.geometry import road_normal
 from estimator.homography import A_SLICE, N_STATE, V_SLICE, W_SLICE, check_state
 
 _MIN_INLIER_VAR = 0.05  # eq. 21 variance is floored at this fraction of R (never <= 0)
@@ -98,7 +99,7 @@ def _car_cov(R_car_cam: np.ndarray, sig_car: tuple[float, float, float]) -> np.n
 
 def _A_cov(K0: np.ndarray, sig_plane: float, sig_normal: float) -> np.ndarray:
     """(3, 3) covariance of A: sig_normal about the road normal, sig_plane across."""
-    n = np.asarray(K0, dtype=float) / np.linalg.norm(K0)
+    n = road_normal(K0)
     nn = np.outer(n, n)
     return sig_plane**2 * (np.eye(3) - nn) + sig_normal**2 * nn
 
@@ -140,7 +141,7 @@ def transition(
     ``A_sigma_normal_rad² (1 - rho²)`` about the normal (the rigid mount's yaw keeps its
     stationary std).
     """
-    n = np.asarray(K0, dtype=float) / np.linalg.norm(K0)
+    n = road_normal(K0)
     nn = np.outer(n, n)
     Pi = np.eye(3) - nn
     rho = float(np.exp(-dt_s / cfg.A_tau_s))
@@ -218,7 +219,7 @@ def vertical_speed_update(
     tell it where the images hardly can.
     """
     h = np.zeros(N_STATE)
-    h[V_SLICE] = np.asarray(K0, dtype=float) / np.linalg.norm(K0)
+    h[V_SLICE] = road_normal(K0)
     return scalar_update(x, P, h, 0.0, sigma_mps**2)
 
 
@@ -408,7 +409,7 @@ class IteratedEKF:
 
     def _rates_in_plane(self) -> np.ndarray:
         """(3,) the part of W about axes in the road plane (roll and pitch rates) [rad/s]."""
-        n = self.K0 / np.linalg.norm(self.K0)
+        n = road_normal(self.K0)
         W = self.x[W_SLICE]
         return W - n * float(n @ W)
 

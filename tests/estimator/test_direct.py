@@ -857,6 +857,8 @@ def test_config_errors_name_the_key() -> None:
     for bad in (float("nan"), -5.0):
         with pytest.raises(ValueError, match=r"direct\.far_depth_m must be finite and >= 0"):
             default_config("pinhole", far_depth_m=bad)
+    with pytest.raises(ValueError, match=r"direct\.yaw_jump_rounds must be >= 1"):
+        default_config("pinhole", yaw_jump_rounds=0)
 
 
 def test_bench_smoke() -> None:
