@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from estimator.camera import CameraModel
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
 from estimator.fileio import write_text
-from estimator.mount import CameraMount
 from estimator.progress import track
 from estimator.recording import CanTrack
 
@@ -86,7 +86,7 @@ def estimate_frames(
     road_masks: optional (H, W) bool road mask per frame (`estimator.recording.
     iter_road_masks`); there must be one for every frame.
     """
-    from estimator.baselines import make_estimator
+    from estimator.egomotion.baselines import make_estimator
 
     est = make_estimator(estimator, camera, mount, **config)
     records, times = [], []

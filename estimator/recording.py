@@ -114,7 +114,7 @@ def _image_files(folder: Path, suffixes: tuple[str, ...], what: str) -> list[Pat
 def iter_road_masks(folder: str | Path) -> Iterator[np.ndarray]:
     """(H, W) bool road masks (non-zero = road), one PNG per frame in name order.
 
-    For a road segmentation computed elsewhere (`estimator.direct` lets its points off
+    For a road segmentation computed elsewhere (`estimator.egomotion.direct` lets its points off
     the road tell the rotation only); the estimator checks each mask's size.
     """
     folder = Path(folder)

@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from estimator.camera import CameraModel
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
 from estimator.geometry import make_T, rot_z, so3_exp
-from estimator.mount import CameraMount
 
 _LATTICE = 256  # [cells] side of each octave's random lattice (tiled)
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.camera_io import load_camera
+from estimator.camera.files import load_camera
 from estimator.fileio import read_png
-from estimator.surround import SurroundAnalyzer
+from estimator.surround.analyzer import SurroundAnalyzer
 from scenarios.config import Scenario
 from sim.drive import load_groundtruth, render_drive
 

@@ -72,9 +72,9 @@ def calibrate(
     body_mask_deg: float = typer.Option(75.0),
 ) -> None:
     """Calibrate a hyperbolic omni camera (paper section 3.2) and write camera.yaml."""
-    from estimator.calibration import CalibrationError, calibrate_csv
-    from estimator.camera_io import save_camera
-    from estimator.mount import CameraMount
+    from estimator.camera.calibration import CalibrationError, calibrate_csv
+    from estimator.camera.files import save_camera
+    from estimator.camera.mount import CameraMount
 
     try:
         cam, report = calibrate_csv(
@@ -193,7 +193,7 @@ def estimate(
     """Estimate ego-motion of any recording; writes OUT/egomotion.csv."""
     import numpy as np
 
-    from estimator.camera_io import load_camera
+    from estimator.camera.files import load_camera
     from estimator.pipeline import estimate_frames, write_egomotion_csv
     from estimator.recording import (
         RecordingError,
@@ -277,7 +277,7 @@ def bench_estimate(
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
     """Median ms per frame of the direct estimator on one core (synthetic road frames)."""
-    from estimator.bench import bench_direct
+    from estimator.egomotion.bench import bench_direct
 
     _one_core()
     res = bench_direct(camera_name=camera, n_frames=frames)

@@ -125,7 +125,7 @@ class EvalFrame:
 
 
 def hypotheses_from_tracks(tracks: Iterable[Any]) -> list[tuple[int, float, float]]:
-    """(id, x, y) of tracks with ``.id`` and ``.x`` (e.g. `estimator.tracking.Track`)."""
+    """(id, x, y) of tracks with ``.id`` and ``.x`` (e.g. `estimator.surround.tracking.Track`)."""
     return [(int(t.id), float(t.x[0]), float(t.x[1])) for t in tracks]
 
 

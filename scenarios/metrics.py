@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.mount import CameraMount
+from estimator.camera.mount import CameraMount
 
 STATE_COLS = ["V_x", "V_y", "V_z", "W_x", "W_y", "W_z", "A_x", "A_y", "A_z"]
 

@@ -26,12 +26,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.camera import CameraModel
-from estimator.ego_estimator import INLIER, PointPull
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
+from estimator.egomotion.ego_estimator import INLIER, PointPull
+from estimator.egomotion.homography import V_SLICE, W_SLICE
 from estimator.fileio import read_png, write_png
 from estimator.geometry import road_distance_m
-from estimator.homography import V_SLICE, W_SLICE
-from estimator.mount import CameraMount
 
 MIN_HEIGHT_M = 0.1  # [m] above this, a point is not on the road
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.camera import CameraModel
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
 from estimator.fileio import read_png
-from estimator.mount import CameraMount
 
 
 def _warp_prev(

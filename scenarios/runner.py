@@ -18,16 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.baselines import make_estimator
-from estimator.camera_io import load_camera
-from estimator.detection import DetectorConfig
+from estimator.camera.files import load_camera
+from estimator.egomotion.baselines import make_estimator
+from estimator.egomotion.homography import homography, make_state
 from estimator.fileio import atomic_write, write_json, write_png, write_text
 from estimator.geometry import rot_z
-from estimator.homography import homography, make_state
 from estimator.pipeline import write_egomotion_csv
 from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
-from estimator.surround import SurroundAnalyzer
+from estimator.surround.analyzer import SurroundAnalyzer
+from estimator.surround.detection import DetectorConfig
 from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import EvalFrame, GtVehicle, MetricsConfig, evaluate

@@ -62,12 +62,12 @@ SUITES_DIR = Path(__file__).parent / "suites"
 REPO_DIR = Path(__file__).resolve().parents[1]
 
 # Sources whose change changes a render (the render cache key): all of sim/ and the
-# camera models, camera files, mount and geometry of estimator/.
+# camera package (models, files, mount, presets), geometry and synthetic road of estimator/.
 RENDER_SOURCES = (
     "sim/**/*",
-    "estimator/camera*.py",
-    "estimator/mount.py",
+    "estimator/camera/**/*",
     "estimator/geometry.py",
+    "estimator/synthetic.py",
 )
 
 # Flattened metric keys of metrics.json (scenarios.runner) that thresholds may name.
@@ -145,7 +145,7 @@ class SuiteSpec(_Strict):
     @field_validator("estimators")
     @classmethod
     def _estimators(cls, v: list[str]) -> list[str]:
-        from estimator.baselines import ESTIMATORS
+        from estimator.egomotion.baselines import ESTIMATORS
 
         for e in v:
             if e not in ESTIMATORS:
@@ -316,7 +316,7 @@ def job_id_for(scenario: Scenario, estimator: str, frames: int) -> str:
 
 
 def render_key_for(scenario: Scenario, frames: int) -> str:
-    from estimator.camera_io import camera_to_dict, resolve_camera
+    from estimator.camera.files import camera_to_dict, resolve_camera
 
     camera = camera_to_dict(*resolve_camera(scenario.camera))
     return _hash(

@@ -304,7 +304,7 @@ def plot_speed_errors(
     out_dir: Path, outcomes: list[Outcome], drive_dir_of, max_groups: int = 40
 ) -> list[tuple[str, str]]:
     """One PNG per (scenario, camera): estimated minus true forward speed against time."""
-    from estimator.camera_io import load_camera
+    from estimator.camera.files import load_camera
     from scenarios.metrics import ego_series, read_egomotion_csv
     from sim.drive import load_groundtruth
 

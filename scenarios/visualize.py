@@ -16,8 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.homography import homography
-from estimator.planview import PlanView
+from estimator.egomotion.homography import homography
+from estimator.surround.planview import PlanView
 
 PANEL_PX = 400
 INLIER, OUTLIER = 1, 2  # labels of EgoMotionRecord.point_labels (0 = unused)

@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from scenarios.config import Scenario
 from sim.drive import prepare_drive
+from sim.scenario import Scenario
 
 
 def bench_render(

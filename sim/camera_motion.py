@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimator.camera.mount import CameraMount
 from estimator.geometry import make_T, rot_z, so3_exp, so3_log
-from estimator.mount import CameraMount
 
 
 @dataclass(frozen=True)

@@ -30,11 +30,10 @@ import cv2
 import numpy as np
 
 from estimator import fileio as io
-from estimator.camera import CameraModel
-from estimator.camera_io import resolve_camera, save_camera
-from estimator.mount import CameraMount
+from estimator.camera.files import resolve_camera, save_camera
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
 from estimator.progress import track
-from scenarios.config import Scenario
 from sim.camera_motion import (
     CameraPose,
     T_world_car,
@@ -46,6 +45,7 @@ from sim.can import can_at, can_messages
 from sim.gl import pyrender, set_depth_offset
 from sim.highway import EGO_REAR_AXLE_X_M, WorldFrame, simulate
 from sim.renderer import OmniRenderer, finest_pixel_angle_rad
+from sim.scenario import Scenario
 from sim.scene import (
     DEPTH_OFFSET,
     build_static_scene,

@@ -46,7 +46,7 @@ Rendering per observation:
   camera's mount (``sim.camera_motion.camera_pose``), optionally vibrating;
 - ``sim.renderer.OmniRenderer`` renders the cube map and ray-maps it;
 - sensor effects (``sim.sensor``) are off by default; ``sensor: {...}`` takes the
-  keys of ``scenarios.config.SensorConfig``. Motion blur uses the motion since the
+  keys of ``sim.scenario.SensorConfig``. Motion blur uses the motion since the
   previous observation (the next one is not known online).
 
 Seeds. The seed of an episode is (seed passed to the last ``reset(seed=...)``,
@@ -87,10 +87,9 @@ from highway_env.envs.common.observation import ObservationType
 from highway_env.envs.highway_env import HighwayEnv
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from estimator.camera import CameraModel, vignetting_gain
-from estimator.camera_io import resolve_camera
-from estimator.mount import CameraMount
-from scenarios.config import SensorConfig, VibrationConfig
+from estimator.camera.files import resolve_camera
+from estimator.camera.models import CameraModel, vignetting_gain
+from estimator.camera.mount import CameraMount
 from sim import scene as scene_mod
 from sim.camera_motion import CameraPose, T_world_car, Vibration, camera_pose
 from sim.drive import (
@@ -111,6 +110,7 @@ from sim.highway import (
     world_yaw_from_hw_heading,
 )
 from sim.renderer import OmniRenderer
+from sim.scenario import SensorConfig, VibrationConfig
 from sim.scene import decode_id_image, id_occluder_mesh, vehicles_mesh
 from sim.sensor import SensorModel, apply_sensor, exposure_times
 from sim.textures import asphalt_texture, grass_texture

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.camera import CameraModel
+from estimator.camera.models import CameraModel
 from estimator.synthetic import pixel_angle_rad
 from sim.gl import pyrender
 

@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from estimator.camera.mount import CameraMount
 from estimator.geometry import road_distance_m, road_normal
-from estimator.mount import CameraMount
 
 
 def test_road_distance_is_horizontal_to_the_road_hit() -> None:

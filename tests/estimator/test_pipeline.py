@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import threadpool_info
 
-import estimator.baselines as baselines
-from estimator.camera_io import load_camera
+import estimator.egomotion.baselines as baselines
+from estimator.camera.files import load_camera
 from estimator.pipeline import estimate_frames
 from estimator.recording import CanTrack
 from estimator.synthetic import RoadTexture, drive_poses, render_road, to_uint8

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.camera_io import load_camera
+from estimator.camera.files import load_camera
 from scenarios.cli import parse_settings
 
 

@@ -60,7 +60,7 @@ def test_unknown_camera_preset_lists_known(tmp_path):
 
 def test_inline_camera_overrides(tmp_path):
     p = _write(tmp_path, "name: x\ncamera: {preset: omni-far, width: 800, height: 800}\n")
-    from estimator.camera_io import resolve_camera
+    from estimator.camera.files import resolve_camera
 
     cam, _ = resolve_camera(load_scenario(p).camera)
     assert (cam.width, cam.height) == (800, 800)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.tracking import Tracker
+from estimator.surround.tracking import Tracker
 from scenarios.detection_metrics import (
     EvalFrame,
     GtVehicle,

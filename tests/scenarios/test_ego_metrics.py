@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from estimator.camera_io import load_camera
+from estimator.camera.files import load_camera
 from scenarios.metrics import ego_consistency
 
 

@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from estimator.camera_io import load_camera
-from estimator.ego_estimator import INLIER, OUTLIER, PointPull
+from estimator.camera.files import load_camera
+from estimator.egomotion.ego_estimator import INLIER, OUTLIER, PointPull
 from estimator.fileio import read_png, write_png
 from scenarios.point_audit import (
     PullMap,

@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from estimator.camera.mount import CameraMount
 from estimator.geometry import skew
-from estimator.mount import CameraMount
 from sim.camera_motion import (
     T_world_car,
     Vibration,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from estimator import fileio as io
-from estimator.camera import vignetting_gain
+from estimator.camera.models import vignetting_gain
 from sim.can import can_at, can_messages
 from sim.sensor import SensorModel, apply_sensor, exposure_times, motion_blur
 

@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from estimator.camera_io import load_camera
+from estimator.camera.files import load_camera
 from estimator.fileio import read_png
-from scenarios.config import scenario_from_dict
 from sim import drive as drive_mod
 from sim.drive import DriveError, load_groundtruth, render_drive
+from sim.scenario import scenario_from_dict
 
 N = 6
 
@@ -178,7 +178,7 @@ def test_resume_with_another_face_size_is_refused(drive_dir, tmp_path):
 
 @pytest.mark.parametrize("preset", ["omni-near", "omni-far", "rectilinear-rear-left"])
 def test_default_face_is_finer_than_the_camera(preset):
-    from estimator.camera_io import resolve_camera
+    from estimator.camera.files import resolve_camera
     from estimator.synthetic import pixel_angle_rad
 
     cam, _ = resolve_camera(preset)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from estimator.camera_io import resolve_camera
+from estimator.camera.files import resolve_camera
 from estimator.geometry import make_T
 from sim.gl import pyrender
 from sim.renderer import CubeMapLookup, OmniRenderer, face_rotation

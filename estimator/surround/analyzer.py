@@ -1,0 +1,184 @@
+"""Surround analysis of one frame: compensation, detection, tracking (section 5).
+
+`SurroundAnalyzer.step` takes the current frame and the ego-motion estimate
+since the previous one, keeps the few earlier frames the detector compares
+with, and returns the detections and the vehicle tracks in the ego road frame
+(x forward, y left, origin on the road under the camera viewpoint).
+
+Which candidates are vehicles. The detector's candidates are blobs that move
+unlike any static point (`estimator.surround.detection`), but rendered roadside
+structure (periodic guard-rail posts, aliased lane marks, trees against the
+sky) sometimes fits the "moving" hypothesis better by chance, in a frame or
+two, at a place that recurs because the scene repeats. An independently
+moving vehicle does so in (nearly) every frame, at positions that follow one
+motion. So every candidate is tracked (`estimator.surround.tracking`), and a track is a
+*vehicle* once it is confirmed and its hit rate, an exponential average of
+"detected this frame" (1) or not (0) with weight `SurroundConfig.hit_rate_alpha`,
+reaches `vehicle_on` over at least `vehicle_min_hits` hits; it stays one while
+the rate is above `vehicle_off` (hysteresis). The frame's reported detections
+are the candidates assigned to vehicle tracks, placed at their track's Kalman
+posterior of the frame (`SurroundConfig.report_filtered`: a single frame's
+nearest point jitters by 2-3 px, ~1-2 m at 15-20 m); the reported tracks are
+the vehicle tracks that were detected within the last `max_coast_frames` frames.
+
+A candidate whose ground point is hidden (car-body mask) is a bearing-only
+measurement for the tracker; once assigned to a track, its reported position is
+the track's, moved onto the measured bearing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
+from estimator.egomotion.compensation import FrameCompensator
+from estimator.surround.detection import DetectionFrame, DetectorConfig, VehicleDetector
+from estimator.surround.tracking import Track, Tracker, TrackerConfig
+
+
+@dataclass(frozen=True)
+class SurroundConfig:
+    """Which tracks are vehicles (units beside each value)."""
+
+    hit_rate_alpha: float = 0.25  # [-] weight of the current frame in the hit-rate average
+    vehicle_on: float = 0.85  # [-] hit rate from which a confirmed track is a vehicle
+    vehicle_off: float = 0.45  # [-] hit rate below which it is no longer one
+    vehicle_min_hits: int = 5  # [frames] hits before a track can be a vehicle
+    max_coast_frames: int = 2  # [frames] a vehicle track missed longer is not reported
+    # a vehicle's reported position: the track's Kalman posterior of this frame (its
+    # detection filtered with the earlier ones), not the single-frame detection; a hidden
+    # one (bearing only) is reported on its measured bearing at the track's range
+    report_filtered: bool = True  # [-]
+
+    def __post_init__(self) -> None:
+        if not (0 < self.hit_rate_alpha <= 1 and 0 <= self.vehicle_off <= self.vehicle_on <= 1):
+            raise ValueError(
+                f"SurroundConfig: need 0 < alpha <= 1 and 0 <= off <= on <= 1, "
+                f"got {self.hit_rate_alpha}, {self.vehicle_off}, {self.vehicle_on}"
+            )
+
+
+@dataclass
+class SurroundFrame:
+    """Result of one frame: detection internals and the vehicle tracks."""
+
+    frame: int
+    t_s: float
+    detection: DetectionFrame
+    tracks: list[Track]
+    compensated: np.ndarray | None = None  # kept for compatibility (not computed)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) float32 grey of an RGB (H, W, 3) or grey (H, W) image."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        if img.dtype == np.uint8:
+            if img.strides[-1] < 0:  # a reversed view of a BGR image (cv2.imread()[..., ::-1])
+                return cv2.cvtColor(img[..., ::-1], cv2.COLOR_BGR2GRAY).astype(np.float32)
+            return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        img = img[..., 0] * 0.299 + img[..., 1] * 0.587 + img[..., 2] * 0.114
+    return img.astype(np.float32)
+
+
+class SurroundAnalyzer:
+    """Detector + tracker for one camera; keeps the earlier frames it needs."""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        mount: CameraMount,
+        detector: DetectorConfig | None = None,
+        tracker: TrackerConfig | None = None,
+        surround: SurroundConfig | None = None,
+    ) -> None:
+        self.camera, self.mount = camera, mount
+        self.compensator = FrameCompensator(camera, mount)
+        self.detector = VehicleDetector(camera, mount, detector, self.compensator)
+        self.tracker = Tracker(tracker)
+        self.cfg = surround or SurroundConfig()
+        n = self.detector.cfg.baseline_frames
+        self._frames: deque[np.ndarray] = deque(maxlen=n + 1)
+        self._full: deque[np.ndarray] = deque(maxlen=n + 1)
+        self._steps: deque[tuple[np.ndarray, float]] = deque(maxlen=n)
+        self._rate: dict[int, float] = {}  # track id -> hit rate
+        self._vehicle: set[int] = set()  # ids of tracks that are vehicles
+
+    def step(
+        self,
+        frame: int,
+        t_s: float,
+        image: np.ndarray,
+        x: np.ndarray,
+        dt_s: float,
+        speed_mps: float,
+        yaw_rate_rps: float,
+    ) -> SurroundFrame | None:
+        """Analyse ``image`` given the estimate x (9,) of the motion since the last call.
+
+        Returns None for the first frame (nothing to compare with).
+        """
+        gray = to_gray(image)
+        small = self.detector.prepare(gray)
+        if not (dt_s > 0 and np.all(np.isfinite(x))):
+            # no usable motion: restart the history from this frame
+            self._frames.clear()
+            self._full.clear()
+            self._steps.clear()
+            self._frames.append(small)
+            self._full.append(gray)
+            return None
+        self._frames.append(small)
+        self._full.append(gray)
+        if len(self._frames) < 2:
+            return None
+        self._steps.append((np.asarray(x, float).copy(), float(dt_s)))
+        steps = list(self._steps)[-(len(self._frames) - 1) :]
+        det = self.detector.detect(small, self._frames[0], steps, gray, self._full[0])
+        cands = det.candidates
+        xy = np.array([[d.x_m, d.y_m] for d in cands]).reshape(-1, 2)
+        self.tracker.step(
+            t_s, xy, speed_mps, yaw_rate_rps, extras=cands, bearing_only=[d.hidden for d in cands]
+        )
+        det.detections = self._classify(cands)
+        tracks = [
+            t
+            for t in self.tracker.tracks
+            if t.id in self._vehicle and t.misses <= self.cfg.max_coast_frames
+        ]
+        return SurroundFrame(frame, t_s, det, tracks)
+
+    def _classify(self, cands: list) -> list:
+        """Update the hit rates and vehicle flags; the candidates of vehicle tracks."""
+        cfg = self.cfg
+        live = self.tracker.tracks
+        ids = {t.id for t in live}
+        self._rate = {i: r for i, r in self._rate.items() if i in ids}
+        self._vehicle &= ids
+        out = []
+        for t in live:
+            hit = t.misses == 0
+            r = self._rate.get(t.id)
+            r = 1.0 if r is None else (1 - cfg.hit_rate_alpha) * r + cfg.hit_rate_alpha * hit
+            self._rate[t.id] = r
+            if t.id in self._vehicle:
+                if r < cfg.vehicle_off:
+                    self._vehicle.discard(t.id)
+            elif t.confirmed and t.hits >= cfg.vehicle_min_hits and r >= cfg.vehicle_on:
+                self._vehicle.add(t.id)
+            if hit and t.id in self._vehicle and any(t.extra is c for c in cands):
+                d = t.extra
+                if cfg.report_filtered and not d.hidden:
+                    d.x_m, d.y_m = float(t.x[0]), float(t.x[1])
+                elif d.hidden:  # bearing only: the track's range on the measured bearing
+                    u = np.array([math.cos(d.bearing_rad), math.sin(d.bearing_rad)])
+                    r_along = max(float(t.x[:2] @ u), 0.0)
+                    d.x_m, d.y_m = float(r_along * u[0]), float(r_along * u[1])
+                out.append(d)
+        return out

@@ -1,0 +1,842 @@
+"""Vehicle detection after ego-motion compensation (paper section 5).
+
+The paper compensates the previous frame with the road homography and
+thresholds the normalized frame difference (eq. 22): whatever is not on the
+road plane lights up. On rendered drives that alone does not find vehicles:
+
+- a vehicle driving at about the ego car's speed is nearly still in the image,
+  so after road compensation it shows only the small residual of the road flow
+  at its pixels (|ND| ~0.4 median on its pixels, omni-near, 18 m ahead);
+- static roadside structure with height (guard-rail posts, poles, trees) has a
+  large parallax after road compensation (|ND| up to 2.5-3.9, p99-p99.9);
+- thin rendered features (lane marks, rail edges) alias on the pixel grid.
+
+So this module tests, at every pixel, which *motion hypothesis* explains the
+change from an earlier frame best ("independent motion OR height"):
+
+- a point at height z above the road, static, moves in the image like the
+  plane parallel to the road at height z. With ``lambda = h / (h - z)`` (h the
+  viewpoint's height) its homography is ``H_lambda = R + lambda D K^T`` (eq.
+  3-4 with the translation scaled by lambda): the road is lambda = 1, and every
+  static point below the horizon has ``lambda >= 1`` (`static_lambdas`);
+- a point fixed to the ego car (another vehicle driving alongside at the same
+  speed) moves only with the camera's vibration: lambda = 0, with the rotation
+  R stripped of the car's yaw (`moving_lambdas`); more generally a vehicle
+  driving forward at ground speed v_g has ``lambda = (1 - v_g/v_ego) h/(h - z)``,
+  which is < 1 for every forward-moving vehicle faster than ~(1 - (h - z)/h) v_ego.
+
+For each hypothesis the earlier frame is warped onto the current one
+(`estimator.egomotion.compensation`); ``E_lambda = <(I - I_lambda)^2>`` is the
+Gaussian-windowed residual energy. The score
+
+    m = (min_static E - min_moving E) / (S + k + <|g|^2> sigma^2)
+
+is positive where a moving hypothesis explains the pixel better than every
+static one. ``S = <(I_1 - I_0)^2>`` (how different the road and the co-moving
+predictions are there: where the texture is the same either way, e.g. streaks
+along the flow, nothing can be decided), ``k`` a noise floor [grey level^2] and
+``<|g|^2> sigma^2`` the residual that a misregistration of sigma px leaves on
+an edge (aliasing of the render, interpolation, ego-motion error). It is like
+eq. 22's normalisation, for two hypotheses instead of one. The score is
+computed at the working scale and one coarser pyramid level (a vehicle close
+by moves tens of pixels: the coarse level keeps the hypotheses apart).
+
+Then, as in the paper: threshold, flat-plane transform into the plan view
+(`estimator.surround.planview`), morphological closing with a 1 x N mask along the car's
+direction of motion (N = 5.0 m: two blobs within 5 m in that direction are one
+vehicle), blobs (connected components), nearby blobs clustered, and the blob
+point nearest the camera taken as on the road (the obstacle map): its
+road-plane position by inverse perspective. The nearest point is that of the
+blob's parts that reach a vehicle's height (`VehicleDetector._tall_parts`); a
+blob without such a part (low structure, e.g. guard-rail posts closed into a
+strip) is no candidate.
+
+Obstacle map where the road is hidden: a blob whose nearest point lies on the
+inner edge of the seen road (the omni camera's car-body mask, ~7.3 m) does not
+show where the vehicle meets the road, only its bearing. Such a detection is
+flagged ``hidden`` and placed on that bearing (the middle of the arc along
+which the blob's tall parts meet the edge) at ``hidden_range_frac`` of the
+edge's range; the tracker refines it (bearing-only update).
+
+Ego car (nearly) stopped (displacement over the baseline below
+``still_displacement_m``): every hypothesis is then almost the same warp, S ~ 0
+and m decides nothing, while a crossing vehicle is explained by none of them.
+There, as in eq. 22, a pixel that no static hypothesis explains is moving:
+``r = min_static E / (k + <|g|^2> sigma^2) > still_threshold``.
+
+Not detected: vehicles that do not move over the ground when the ego car does
+not either (nothing distinguishes them from static structure in two frames)
+and, while the ego car moves, vehicles whose motion is not forward along the
+road (crossing traffic): those must show a larger-than-static parallax
+(lambda > max static) or be tracked; see `estimator.surround.analyzer`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from estimator.camera.models import CameraModel
+from estimator.camera.mount import CameraMount
+from estimator.egomotion.compensation import FrameCompensator
+from estimator.egomotion.homography import homography_parts
+from estimator.geometry import skew
+from estimator.surround.planview import PlanView, pixel_road_xy
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Settings of `VehicleDetector` (units beside each value).
+
+    "px" are pixels of the full-resolution image unless stated otherwise.
+    """
+
+    # temporal baseline and working resolution
+    baseline_frames: int = 2  # [frames] the current frame is compared with the one n before
+    scale: int = 2  # [-] working resolution = full / scale (1 or 2; pyrDown)
+    # eq. 22 (kept for display: `DetectionFrame.normalized_difference`)
+    nd_kernel_px: int = 7  # K: Gaussian averaging window of eq. 22 [px]
+    nd_k: float = 50.0  # k: regulariser of eq. 22 [grey level^2]
+    # motion hypotheses: lambda = h / (h - z) for static points at height z (road: 1)
+    # static points at 0 .. ~1.3 m in steps of a quarter of the road's image motion
+    # (finer steps near the road: periodic structure such as guard-rail posts must not
+    # fit the moving hypothesis better than every static one by aliasing)
+    static_lambdas: tuple[float, ...] = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)  # [-] incl. 1.0
+    moving_lambdas: tuple[float, ...] = (0.0,)  # [-] must include 0.0 (fixed to the car)
+    window_px: float = 10.0  # [px] Gaussian window (K) of the residual energies
+    energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
+    registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
+    score_threshold: float = 0.5  # [-] m above which a pixel is independently moving
+    border_margin_px: int = 12  # [px] margin inside the field of view's outer rim left out
+    # margin along the inner edge (the omni camera's car-body mask): the mask already ends
+    # ~45 px beyond the car body, and at that edge 1 px is ~0.25 m of road: a wide margin
+    # there hides the ground point of every vehicle within ~10 m instead of ~7.5 m
+    inner_margin_px: int = 4  # [px]
+    coarse_level: bool = True  # [-] also score one pyramid level coarser
+    # ego car (nearly) stopped: the static and co-moving hypotheses coincide (S ~ 0) and
+    # m decides nothing; then a pixel that no static hypothesis explains is moving (the
+    # paper's compensated difference, eq. 22): r = min_static E / (k + <|g|^2> sigma^2)
+    still_displacement_m: float = 0.5  # [m] ego displacement over the baseline below this
+    still_threshold: float = 1.0  # [-] r above which a pixel moves (ego stopped)
+    # plan view and blobs
+    plan_range_m: float = 45.0  # half-size of the plan view [m]
+    m_per_px: float = 0.2  # plan-view resolution [m/px]
+    gap_m: float = 5.0  # N: closing length along the direction of motion [m]
+    min_blob_m2: float = 0.5  # smallest blob kept [m^2]
+    cluster_m: float = 1.5  # blobs closer than this are one vehicle [m]
+    max_range_m: float = 25.0  # detections farther than this are dropped [m]
+    min_range_m: float = 0.0  # detections nearer than this are dropped [m]
+    # obstacle map where the ground is hidden (car-body mask)
+    min_height_m: float = 0.8  # [m] a vehicle's moving part reaches at least this height
+    hidden_margin_m: float = 0.6  # nearest point within this of the seen area's inner edge [m]
+    hidden_range_frac: float = 0.6  # [-] such a detection is placed at this fraction of it
+    # full-resolution refinement of the nearest point (the blob's lowest moving edge)
+    refine: bool = True  # [-] refine each blob's nearest point at full resolution
+    refine_radius_px: int = 24  # [px] half-size of the search window around the coarse point
+    refine_threshold: float = 0.3  # [-] score m (3 x 3 window) of a moving edge pixel
+    refine_weak_threshold: float = 0.1  # [-] m of an edge pixel linked to a moving one
+    refine_min_gradient: float = 6.0  # [grey level/px] edge of the current frame
+    refine_back_m: float = 3.0  # [m] the refined point may be this much nearer than the coarse
+    # the vehicle's lower contour (nearest moving edge per bearing bin) is fitted with
+    # lines (its faces toward the camera) and the fit's nearest point taken: one pixel
+    # is ~0.4 m of range at 15 m, about what a face seen nearly end-on changes in range
+    # (rear face at 15 m, 11 deg: 0.5 m over its 2 m), so the argmin of single pixels
+    # lands anywhere along that face (measured: ~1 m from its nearest corner)
+    refine_bearing_bin_rad: float = 0.005  # [rad] bearing bin of the contour (~1 px at 15 m)
+    refine_split_m: float = 0.75  # [m] contour split into faces beyond this from a chord
+    # a vehicle's lowest visible edge is its body's lower edge, not the road: its ray
+    # meets the road (h / (h - z_c)) farther than the vehicle (about 9 % at z_c = 0.16 m,
+    # the simulator's cars; road cars: ~0.1-0.2 m); the obstacle-map range is scaled back
+    vehicle_clearance_m: float = 0.15  # [m] z_c; 0 to take the nearest point on the road
+
+    def __post_init__(self) -> None:
+        if self.baseline_frames < 1 or self.scale not in (1, 2):
+            raise ValueError(
+                f"DetectorConfig: baseline_frames >= 1 and scale in (1, 2), got "
+                f"{self.baseline_frames}, {self.scale}"
+            )
+        if 1.0 not in self.static_lambdas or 0.0 not in self.moving_lambdas:
+            raise ValueError(
+                "DetectorConfig: static_lambdas must contain 1.0 (the road) and "
+                "moving_lambdas 0.0 (fixed to the car)"
+            )
+        if min(self.static_lambdas) < 1.0 or max(self.moving_lambdas) >= 1.0:
+            raise ValueError("DetectorConfig: static lambdas are >= 1, moving ones < 1")
+
+
+@dataclass
+class Detection:
+    """A detected vehicle: nearest road point (x fwd, y left) [m] in the ego road frame.
+
+    hidden: the blob reaches the inner edge of the seen road (car-body mask), so
+    only the bearing of the point is measured; x_m, y_m are on that bearing at an
+    assumed range (see `DetectorConfig.hidden_range_frac`).
+    score: motion score m at the blob's nearest point (working scale) [-].
+    """
+
+    x_m: float
+    y_m: float
+    area_m2: float
+    bbox_plan: tuple[int, int, int, int]  # (col, row, width, height) in the plan view
+    pixel: tuple[float, float] = (float("nan"), float("nan"))  # camera pixel of the point
+    hidden: bool = False
+    bearing_rad: float = float("nan")  # [rad] atan2(y, x) of the nearest point
+    score: float = float("nan")
+    height_m: float = float("nan")  # [m] apparent height h (1 - d_near / d_far) of the blob
+
+
+class DetectionFrame:
+    """Everything one frame of detection produced (kept for visualisation).
+
+    detections: the vehicles reported (set by `estimator.surround.analyzer`: candidates
+    that belong to a vehicle track); candidates: every blob of the frame.
+    normalized_difference: (H, W) float32 eq. 22 on the road-compensated pair;
+    motion_mask: (H, W) bool, pixels whose motion score passed (both computed at
+    the working scale, when first read, and brought to full size); plan_mask:
+    (S, S) uint8 after closing; score: (h, w) float32 motion score m at the
+    working scale.
+    """
+
+    def __init__(
+        self,
+        detections: list[Detection],
+        normalized_difference: np.ndarray | Callable[[], np.ndarray],
+        motion_mask: np.ndarray,
+        plan_mask: np.ndarray | None = None,
+        candidates: list[Detection] | None = None,
+        score: np.ndarray | None = None,
+        full_size: tuple[int, int] | None = None,
+    ) -> None:
+        self.detections = detections
+        self.candidates = candidates if candidates is not None else list(detections)
+        self.plan_mask = plan_mask
+        self.score = score
+        self._nd, self._mask, self._size = normalized_difference, motion_mask, full_size
+
+    @property
+    def normalized_difference(self) -> np.ndarray:
+        if callable(self._nd):  # computed when first read (it is only drawn)
+            self._nd = self._nd()
+        if self._size is not None and self._nd.shape[::-1] != self._size:
+            self._nd = cv2.resize(self._nd, self._size, interpolation=cv2.INTER_LINEAR)
+        return self._nd
+
+    @property
+    def motion_mask(self) -> np.ndarray:
+        if self._size is not None and self._mask.shape[::-1] != self._size:
+            self._mask = (
+                cv2.resize(self._mask.astype(np.uint8), self._size, interpolation=cv2.INTER_NEAREST)
+                > 0
+            )
+        return self._mask
+
+
+def normalized_difference(
+    current: np.ndarray,
+    compensated_prev: np.ndarray,
+    k: float,
+    kernel_px: int,
+    valid: np.ndarray | None = None,
+) -> np.ndarray:
+    """Eq. 22 at every pixel: (H, W) float32, signed.
+
+    current, compensated_prev: (H, W) grey images on the same pixel grid.
+    """
+    a = np.asarray(current, np.float32)
+    b = np.asarray(compensated_prev, np.float32)
+    mean = 0.5 * (a + b)
+    gu = cv2.Sobel(mean, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+    gv = cv2.Sobel(mean, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+    gt = a - b
+    g2 = gu * gu + gv * gv
+    num = gt * np.sqrt(g2)
+    if valid is not None:
+        num = np.where(valid, num, 0.0).astype(np.float32)
+        g2 = np.where(valid, g2, 0.0).astype(np.float32)
+    ksize = (kernel_px | 1, kernel_px | 1)
+    sigma = kernel_px / 4.0
+    # eq. 22: <g_t |g|> / (k + <g_u^2 + g_v^2>)
+    return cv2.GaussianBlur(num, ksize, sigma) / (k + cv2.GaussianBlur(g2, ksize, sigma))
+
+
+def hypothesis_homography(
+    x: np.ndarray, K0: np.ndarray, n: np.ndarray, dt_s: float, lam: float
+) -> np.ndarray:
+    """(3, 3) ``H_lambda`` for one frame step: ``R + lambda D K^T`` (eq. 3-4).
+
+    lam >= 1: a static point at height ``h (1 - 1/lam)`` (lam = 1: the road), with
+    the camera's whole rotation R. lam < 1: a point moving with the car; its
+    rotation is the camera's without the car's yaw (the component of W along the
+    road normal n), i.e. the mount's vibration only.
+    """
+    R, D, K = homography_parts(np.asarray(x, float), K0, dt_s)
+    if lam < 1.0:
+        W = np.asarray(x, float)[3:6]
+        W_vib = W - (W @ n) * n
+        R = np.eye(3) - skew(W_vib) * dt_s
+    return R + lam * np.outer(D, K)
+
+
+def _gauss(img: np.ndarray, K: int) -> np.ndarray:
+    K = max(3, int(K) | 1)
+    return cv2.GaussianBlur(img, (K, K), K / 4.0)
+
+
+def nearest_on_contour(
+    xy_m: np.ndarray,
+    bin_rad: float,
+    split_m: float,
+    min_points: int = 3,
+    weak: np.ndarray | None = None,
+) -> np.ndarray:
+    """(2,) nearest point to the origin of a vehicle's lower contour, fitted [m].
+
+    xy_m: (N, 2) road points of a blob's moving edge pixels (ego road frame). The
+    contour is the nearest point per bearing bin of ``bin_rad``, ordered by bearing;
+    ``weak`` (N,) bool marks points taken only in bins without any other point.
+    It is cut where bins are missing (more than 2) and then split recursively at
+    the point farthest from a piece's chord while that is more than ``split_m``
+    away (iterative end-point fit, Ramer-Douglas-Peucker: the faces of an L-shaped
+    outline, and stray edges apart). Each piece of at least ``min_points`` points is
+    fitted with a total-least-squares line (principal axis) and the nearest point
+    of the fitted segment (the piece's extent along its line) to the origin taken;
+    the nearest of them is returned (the nearest contour point when no piece has
+    enough points). The fit averages the range quantisation of single pixels.
+    """
+    xy = np.asarray(xy_m, float).reshape(-1, 2)
+    b = np.arctan2(xy[:, 1], xy[:, 0])
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    # bins relative to the mean bearing (no wrap at +-pi)
+    b0 = math.atan2(float(np.sin(b).mean()), float(np.cos(b).mean()))
+    k = np.round(np.angle(np.exp(1j * (b - b0))) / bin_rad).astype(int)
+    w = np.zeros(len(xy), bool) if weak is None else np.asarray(weak, bool)
+    order = np.lexsort((r, w, k))
+    first = order[np.r_[True, k[order][1:] != k[order][:-1]]]
+    c, kc = xy[first], k[first]  # contour, ordered by bearing
+    cuts = np.flatnonzero(np.diff(kc) > 3) + 1
+    stack = list(np.split(c, cuts))
+    pieces = []
+    while stack:
+        p = stack.pop()
+        if len(p) >= 2 * min_points:
+            t = (p[-1] - p[0]) / max(float(np.linalg.norm(p[-1] - p[0])), 1e-9)
+            off = np.abs((p - p[0]) @ np.array([-t[1], t[0]]))  # distance from the chord
+            j = int(np.argmax(off))
+            if off[j] > split_m:
+                stack += [p[: j + 1], p[j:]]
+                continue
+        pieces.append(p)
+    best, best_r = c[int(np.argmin(np.hypot(c[:, 0], c[:, 1])))], math.inf
+    for p in pieces:
+        if len(p) < min_points:
+            continue
+        m = p.mean(axis=0)
+        d = np.linalg.svd(p - m, full_matrices=False)[2][0]  # line: m + s d
+        s = (p - m) @ d
+        # nearest point of the line to the origin (s = -m.d), clipped to the piece
+        q = m + float(np.clip(-(m @ d), s.min(), s.max())) * d
+        if float(np.hypot(*q)) < best_r:
+            best, best_r = q, float(np.hypot(*q))
+    return best
+
+
+class VehicleDetector:
+    """Section 5 detector for one camera; lookups are built once."""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        mount: CameraMount,
+        config: DetectorConfig | None = None,
+        compensator: FrameCompensator | None = None,
+    ) -> None:
+        self.camera, self.mount = camera, mount
+        self.cfg = cfg = config or DetectorConfig()
+        self.comp = compensator or FrameCompensator(camera, mount)
+        s = cfg.scale
+        self.plan = PlanView.build(camera, mount, cfg.plan_range_m, cfg.m_per_px)
+        # full-resolution field of view, with a margin (warps are not defined beyond it)
+        # analysed area: the field of view less a margin (warps are not defined beyond
+        # it, and the car body's edge, which moves with the camera, is smeared into its
+        # neighbourhood by motion blur)
+        self.valid = self._analysed_area(camera.valid_mask(), cfg)
+        self.road_s = self.comp.road_mask(s)
+        self.valid_s = (
+            cv2.resize(
+                self.valid.astype(np.uint8),
+                self.road_s.shape[::-1],
+                interpolation=cv2.INTER_NEAREST,
+            )
+            > 0
+        )
+        # plan cells -> pixels of the working scale
+        self._pmx = ((self.plan.map_x + 0.5) / s - 0.5).astype(np.float32)
+        self._pmy = ((self.plan.map_y + 0.5) / s - 0.5).astype(np.float32)
+        self._pmx[self.plan.map_x < 0] = -1e4
+        n = max(1, int(round(cfg.gap_m / cfg.m_per_px)))
+        self._close_kernel = np.ones((n, 1), np.uint8)  # 1 x N along the direction of motion
+        c = max(1, int(round(cfg.cluster_m / cfg.m_per_px)))
+        self._cluster_kernel = np.ones((c, c), np.uint8)
+        x, y = PlanView._grid(self.plan.range_m, self.plan.m_per_px, self.plan.size)
+        self._plan_dist = np.hypot(x, y).astype(np.float32)
+        self._plan_bearing = np.arctan2(y, x)
+        self._inner = self._inner_edge()
+        nb = len(self._inner)
+        bins = ((self._plan_bearing + np.pi) / (2 * np.pi) * nb).astype(int) % nb
+        self._inner_map = self._inner[bins].astype(np.float32)  # (S, S) inner edge per cell
+        self._n = self.comp.n
+        self._lams = tuple(cfg.moving_lambdas) + tuple(cfg.static_lambdas)
+        self._road_xy = pixel_road_xy(camera, mount)  # (H, W, 2) inverse perspective
+        self._road_rng = np.hypot(self._road_xy[..., 0], self._road_xy[..., 1])
+        self._rays = camera.pixel_rays()
+        h = mount.height_m
+        self._clearance_scale = (h - min(cfg.vehicle_clearance_m, 0.5 * h)) / h
+
+    @staticmethod
+    def _analysed_area(valid: np.ndarray, cfg: DetectorConfig) -> np.ndarray:
+        """(H, W) bool: the field of view less border_margin_px inside its outer rim and
+        inner_margin_px around its holes (the car-body mask)."""
+        v = np.asarray(valid, np.uint8)
+        filled = ndimage.binary_fill_holes(v > 0).astype(np.uint8)
+        hole = filled & (1 - v)
+
+        def disk(r_px: int) -> np.ndarray:
+            return np.ones((2 * max(0, int(r_px)) + 1,) * 2, np.uint8)
+
+        outer = cv2.erode(
+            filled, disk(cfg.border_margin_px), borderType=cv2.BORDER_CONSTANT, borderValue=0
+        )
+        inner = cv2.dilate(hole, disk(cfg.inner_margin_px))
+        return (outer > 0) & (inner == 0) & (v > 0)
+
+    def _inner_edge(self) -> np.ndarray:
+        """(B,) range [m] of the nearest seen road cell per bearing bin (0.5 deg)."""
+        nb = 720
+        b = ((self._plan_bearing + np.pi) / (2 * np.pi) * nb).astype(int) % nb
+        inner = np.full(nb, np.inf)
+        seen = self.plan.seen.copy()
+        u = np.clip(np.round(self.plan.map_x).astype(int), 0, self.valid.shape[1] - 1)
+        v = np.clip(np.round(self.plan.map_y).astype(int), 0, self.valid.shape[0] - 1)
+        seen &= self.valid[v, u]
+        np.minimum.at(inner, b[seen], self._plan_dist[seen])
+        return inner
+
+    def inner_edge_range(self, bearing_rad: float) -> float:
+        nb = len(self._inner)
+        i = int((bearing_rad + np.pi) / (2 * np.pi) * nb) % nb
+        return float(self._inner[i])
+
+    # ------------------------------------------------------------------ images
+    def prepare(self, gray: np.ndarray) -> np.ndarray:
+        """(h, w) float32 image at the working scale from a full-resolution grey image."""
+        g = np.asarray(gray, np.float32)
+        return cv2.pyrDown(g) if self.cfg.scale == 2 else g
+
+    def detect(
+        self,
+        current: np.ndarray,
+        earlier: np.ndarray,
+        steps: Sequence[tuple[np.ndarray, float]],
+        current_full: np.ndarray | None = None,
+        earlier_full: np.ndarray | None = None,
+    ) -> DetectionFrame:
+        """Detect in ``current`` against ``earlier`` (both from `prepare`).
+
+        steps: the per-frame (x (9,), dt [s]) from the earlier frame to the current
+        one, oldest first (x: the paper's state, docs/CONVENTIONS.md).
+        current_full, earlier_full: the same frames at full resolution (grey), for the
+        refinement of the nearest points (skipped without them).
+        """
+        cfg = self.cfg
+        s = cfg.scale
+        K0, n = self.comp.K0, self._n
+        # 1. warp the earlier frame with every hypothesis
+        warped: dict[float, np.ndarray] = {}
+        Hs: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        ok = self.road_s & self.valid_s
+        for lam in self._lams:
+            H = np.eye(3)
+            for x, dt in steps:
+                H = hypothesis_homography(x, K0, n, dt, lam) @ H
+            key = lam in (0.0, 1.0)
+            mx, my = self.comp.maps_h(H, s, exact_horizon=key)
+            Hs[lam] = (mx, my)  # kept for the full-resolution refinement
+            warped[lam] = cv2.remap(
+                earlier, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+            )
+            if key:
+                ok &= self.comp.sampled_in_view(mx, my, s)
+        a = np.asarray(current, np.float32)
+        # 2. motion score at the working scale and one level coarser
+        K = cfg.window_px / s
+        sigma = cfg.registration_sigma_px / s
+        score = self._score(a, warped, ok, K, cfg.energy_k, sigma)
+        moving = (score > cfg.score_threshold) & ok
+        # ego (nearly) stopped: no static hypothesis explains the pixel (eq. 22's test)
+        disp_m = sum(float(np.linalg.norm(np.asarray(x, float)[:3])) * dt for x, dt in steps)
+        if disp_m < cfg.still_displacement_m:
+            r = self._static_residual(a, warped, ok, K, cfg.energy_k, sigma)
+            moving |= (r > cfg.still_threshold) & ok
+            score = np.maximum(score, r * (cfg.score_threshold / cfg.still_threshold))
+        if cfg.coarse_level:
+            ac = cv2.pyrDown(a)
+            okc = (
+                cv2.erode(
+                    cv2.resize(
+                        ok.astype(np.uint8),
+                        (ac.shape[1], ac.shape[0]),
+                        interpolation=cv2.INTER_NEAREST,
+                    ),
+                    np.ones((3, 3), np.uint8),
+                )
+                > 0
+            )
+            wc = {lam: cv2.pyrDown(w) for lam, w in warped.items()}
+            sc = self._score(ac, wc, okc, max(3.0, K / 2), cfg.energy_k, sigma / 2)
+            up = cv2.resize(sc, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_LINEAR)
+            moving |= (up > cfg.score_threshold) & ok
+            score = np.maximum(score, up)
+        # 3. plan view, closing along the motion, blobs, obstacle map
+        plan = cv2.remap(
+            moving.astype(np.uint8) * 255,
+            self._pmx,
+            self._pmy,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+        tall = self._tall_parts(plan)
+        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
+        cands = self._blobs(plan, tall)
+        for c in cands:  # motion score at the blob's nearest point (working scale)
+            qu = int(np.clip(round((c.pixel[0] + 0.5) / s - 0.5), 0, score.shape[1] - 1))
+            qv = int(np.clip(round((c.pixel[1] + 0.5) / s - 0.5), 0, score.shape[0] - 1))
+            c.score = float(score[qv, qu])
+        if cfg.refine and current_full is not None and earlier_full is not None:
+            near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
+            for c in cands:
+                if not c.hidden:
+                    self._refine(
+                        c,
+                        np.asarray(current_full, np.float32),
+                        np.asarray(earlier_full, np.float32),
+                        Hs,
+                        near,
+                    )
+        cands = [
+            c for c in cands if cfg.min_range_m <= float(np.hypot(c.x_m, c.y_m)) <= cfg.max_range_m
+        ]
+        cands = self._merge_close(cands)
+        # 4. full-resolution pictures (display)
+        w1 = warped[1.0]
+
+        def nd() -> np.ndarray:  # eq. 22 on the road-compensated pair, for display
+            return normalized_difference(a, w1, cfg.nd_k, max(3, cfg.nd_kernel_px // s), ok)
+
+        return DetectionFrame(
+            list(cands), nd, moving, plan, cands, score, (self.camera.width, self.camera.height)
+        )
+
+    def _merge_close(self, cands: list[Detection]) -> list[Detection]:
+        """One detection per vehicle: points within cluster_m (after refinement, two
+        blobs of one vehicle can end on the same edge) are merged into the larger."""
+        out: list[Detection] = []
+        for c in sorted(cands, key=lambda d: -d.area_m2):
+            for o in out:
+                if math.hypot(c.x_m - o.x_m, c.y_m - o.y_m) <= self.cfg.cluster_m:
+                    o.area_m2 += c.area_m2
+                    break
+            else:
+                out.append(c)
+        return out
+
+    def _refine(
+        self,
+        det: Detection,
+        cur: np.ndarray,
+        early: np.ndarray,
+        maps: dict[float, tuple[np.ndarray, np.ndarray]],
+        near_moving: np.ndarray,
+    ) -> None:
+        """Move the detection to the nearest full-resolution edge that moves independently.
+
+        The working-scale score is smoothed over ~10 px and, for a vehicle ahead,
+        also lights up the road strip it uncovered since the earlier frame (the
+        disocclusion, as long as the ego car's displacement over the baseline).
+        Here, in a window around the coarse nearest point, the score is computed
+        again at full resolution with a 3 x 3 window and kept only on edges of the
+        current frame (the uncovered road has none). Of those pixels (not nearer
+        than refine_back_m before the coarse point), the nearest per bearing bin form
+        the vehicle's lower contour on the road; the nearest point of its line fit
+        (`nearest_on_contour`) is the refined obstacle-map point.
+        """
+        cfg = self.cfg
+        H_img, W_img = cur.shape
+        u0, v0 = det.pixel
+        if not (np.isfinite(u0) and np.isfinite(v0)):
+            return
+        R = cfg.refine_radius_px
+        c0, c1 = max(0, int(u0) - R), min(W_img, int(u0) + R + 1)
+        r0, r1 = max(0, int(v0) - R), min(H_img, int(v0) + R + 1)
+        if c1 - c0 < 3 or r1 - r0 < 3:
+            return
+        a = cur[r0:r1, c0:c1]
+        s = self.cfg.scale
+        shape = a.shape
+        # full-resolution maps of the window, interpolated from the working-scale ones
+        # (a pixel q of scale s is the full-resolution pixel (q + 0.5) s - 0.5)
+        vv, uu = np.mgrid[r0:r1, c0:c1].astype(np.float32)
+        qu, qv = (uu + 0.5) / s - 0.5, (vv + 0.5) / s - 0.5
+        warped = {}
+        for lam, (mx, my) in maps.items():
+            fx = cv2.remap(mx, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            fy = cv2.remap(my, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            warped[lam] = cv2.remap(
+                early,
+                (fx + 0.5) * s - 0.5,
+                (fy + 0.5) * s - 0.5,
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+            )
+        ok = np.ones(shape, bool)
+        m = self._score(a, warped, ok, 3.0, cfg.energy_k, cfg.registration_sigma_px, box=True)
+        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        edge = (gu * gu + gv * gv) >= cfg.refine_min_gradient**2
+        # within the working-scale moving region (dilated), and a road ray
+        mov = (
+            cv2.remap(
+                near_moving,
+                qu,
+                qv,
+                cv2.INTER_NEAREST,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=0,
+            )
+            > 0
+        )
+        rng = self._road_rng[r0:r1, c0:c1]
+        coarse = float(np.hypot(det.x_m, det.y_m))
+        cand = edge & mov & np.isfinite(rng) & (rng >= coarse - cfg.refine_back_m)
+        strong = cand & (m > cfg.refine_threshold)
+        if not strong.any():
+            return
+        # hysteresis (as Canny's edge linking): weaker moving edge pixels connected to a
+        # strong one belong to the same edge (a lower edge's end towards a face seen along
+        # the flow, e.g. the rear corner of a car alongside, scores low: aperture problem);
+        # they extend the contour only at bearings where no strong pixel is (road marks
+        # and shadows linked to the vehicle's edge must not pull it nearer)
+        weak = cand & (m > cfg.refine_weak_threshold)
+        n_lab, lab = cv2.connectedComponents(weak.astype(np.uint8), connectivity=8)
+        keep = np.zeros(n_lab, bool)
+        keep[np.unique(lab[strong])] = True
+        keep[0] = False
+        sel = keep[lab]
+        rows, cols = np.nonzero(sel)
+        xy_px = self._road_xy[r0 + rows, c0 + cols].astype(float)
+        xy = nearest_on_contour(
+            xy_px,
+            cfg.refine_bearing_bin_rad,
+            cfg.refine_split_m,
+            weak=~strong[rows, cols],
+        )
+        # the camera pixel of the reported point: the contour pixel nearest to it
+        i = int(np.argmin(np.hypot(*(xy_px - xy).T)))
+        xy = xy * self._clearance_scale
+        det.x_m, det.y_m = float(xy[0]), float(xy[1])
+        det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
+        det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
+
+    @staticmethod
+    def _energies(
+        a: np.ndarray,
+        warped: dict[float, np.ndarray],
+        ok: np.ndarray,
+        K: float,
+        box: bool,
+        moving: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, Callable]:
+        """(min_static E, min_moving E or None, <|g|^2>, the window average) over ok.
+
+        E_lambda = <(a - I_lambda)^2>; <.>: Gaussian window K [px] (``box``: K x K box).
+        moving: also the moving hypotheses (lambda < 1); else min_moving E is None.
+        """
+        okf = ok.astype(np.float32)
+        kk = int(K)
+
+        def avg(z: np.ndarray) -> np.ndarray:
+            return cv2.blur(z, (kk, kk)) if box else _gauss(z, K)
+
+        E_mov = E_sta = None
+        for lam, w in warped.items():
+            if lam < 1.0 and not moving:
+                continue
+            d = (a - w) * okf
+            e = avg(d * d)
+            if lam < 1.0:
+                E_mov = e if E_mov is None else np.minimum(E_mov, e)
+            else:
+                E_sta = e if E_sta is None else np.minimum(E_sta, e)
+        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        G2 = avg((gu * gu + gv * gv) * okf)
+        return E_sta, E_mov, G2, avg
+
+    @staticmethod
+    def _score(
+        a: np.ndarray,
+        warped: dict[float, np.ndarray],
+        ok: np.ndarray,
+        K: float,
+        k: float,
+        sigma: float,
+        box: bool = False,
+    ) -> np.ndarray:
+        """m = (min_static E - min_moving E) / (S + k + <|g|^2> sigma^2), 0 outside ok.
+
+        <.>: Gaussian window K [px] (``box``: a K x K box).
+        """
+        E_sta, E_mov, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
+        sep = (warped[1.0] - warped[0.0]) * ok.astype(np.float32)
+        S = avg(sep * sep)
+        m = (E_sta - E_mov) / (S + k + G2 * sigma * sigma)
+        m[~ok] = 0.0
+        return m
+
+    @staticmethod
+    def _static_residual(
+        a: np.ndarray,
+        warped: dict[float, np.ndarray],
+        ok: np.ndarray,
+        K: float,
+        k: float,
+        sigma: float,
+    ) -> np.ndarray:
+        """r = min_static E / (k + <|g|^2> sigma^2), 0 outside ok (Gaussian window K [px])."""
+        E_sta, _, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False, moving=False)
+        r = E_sta / (k + G2 * sigma * sigma)
+        r[~ok] = 0.0
+        return r
+
+    def _label_extent(
+        self, labels: np.ndarray, n: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per label 0..n-1: nearest and farthest plan distance [m] and the flat index
+        of the nearest cell (-1 for labels without cells). Works on the labelled
+        cells only (few), not the whole plan."""
+        nz = np.flatnonzero(labels)
+        lab = labels.ravel()[nz]
+        d = self._plan_dist.ravel()[nz]
+        near = np.full(n, np.inf)
+        far = np.zeros(n)
+        cell = np.full(n, -1)
+        if len(nz):
+            order = np.lexsort((d, lab))
+            lab_o = lab[order]
+            first = np.flatnonzero(np.r_[True, lab_o[1:] != lab_o[:-1]])
+            near[lab_o[first]] = d[order][first]
+            cell[lab_o[first]] = nz[order][first]
+            np.maximum.at(far, lab, d)
+        return near, far, cell
+
+    def _tall_parts(self, plan: np.ndarray) -> np.ndarray:
+        """Plan mask (S, S) uint8 keeping the connected parts that reach min_height_m.
+
+        In the flat-plane transform a point at height z seen at ground range d is
+        drawn at ``d h / (h - z)``: a part spanning ranges d_near..d_far reaches the
+        apparent height ``h (1 - d_near / d_far)``. Parts lower than a vehicle (posts,
+        aliased road marks) are dropped before the closing, so that they neither
+        join a vehicle's blob nor move its nearest point.
+        """
+        n, labels = cv2.connectedComponents((plan > 0).astype(np.uint8), connectivity=8)
+        if n <= 1:
+            return plan
+        near, far, _ = self._label_extent(labels, n)
+        height = self.mount.height_m * (1.0 - near / np.maximum(far, 1e-6))
+        keep = height >= self.cfg.min_height_m
+        keep[0] = False
+        return np.where(keep[labels], 255, 0).astype(np.uint8)
+
+    def _blobs(self, plan: np.ndarray, tall: np.ndarray | None = None) -> list[Detection]:
+        cfg = self.cfg
+        binary = (plan > 0).astype(np.uint8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+        px_area = cfg.m_per_px**2
+        keep = np.zeros(n, bool)
+        keep[1:] = stats[1:, cv2.CC_STAT_AREA] * px_area >= cfg.min_blob_m2
+        if not keep.any():
+            return []
+        kept = keep[labels].astype(np.uint8)
+        # nearby blobs are clustered: components of the dilated mask
+        grown = cv2.dilate(kept, self._cluster_kernel)
+        m, groups = cv2.connectedComponents(grown, connectivity=8)
+        groups[kept == 0] = 0
+        flat = groups.ravel()
+        nz = np.flatnonzero(flat)
+        counts = np.bincount(flat[nz], minlength=m)
+        idx = np.arange(1, m)
+        _, far, cell = self._label_extent(groups, m)
+        # nearest cell of each group, from its tall parts
+        if tall is not None:
+            _, _, cell_t = self._label_extent(np.where(tall > 0, groups, 0), m)
+            # a group without a part that reaches min_height_m is low structure only
+            # (guard-rail posts closed into a strip along the road): not a vehicle
+            cell = cell_t
+        boxes = ndimage.find_objects(groups)
+        nz_lab = flat[nz]
+        nz_edge = self._plan_dist.ravel()[nz] < self._inner_map.ravel()[nz] + cfg.hidden_margin_m
+        # cells of the group's tall parts (the vehicle, not low structure it was closed with)
+        nz_tall = (tall.ravel()[nz] > 0) if tall is not None else np.ones(len(nz), bool)
+        out: list[Detection] = []
+        for g in idx:
+            if counts[g] == 0 or cell[g] < 0:
+                continue
+            r, c = divmod(int(cell[g]), plan.shape[1])
+            xy = self.plan.to_road(np.array([r]), np.array([c]))[0]
+            rng = float(np.hypot(*xy))
+            bearing = float(np.arctan2(xy[1], xy[0]))
+            hidden = rng < self.inner_edge_range(bearing) + cfg.hidden_margin_m
+            # apparent height: a point at height z, range d is drawn at d h / (h - z)
+            height = self.mount.height_m * (1.0 - rng / max(far[g], rng))
+            if hidden:
+                # the blob meets the inner edge along an arc: its middle is the bearing;
+                # the arc of its tall parts where they reach the edge (low structure, e.g.
+                # guard-rail posts closed into the blob, would pull it along the rail)
+                edge_g = (nz_lab == g) & nz_edge
+                tall_g = edge_g & nz_tall
+                sel = nz[tall_g] if tall_g.any() else nz[edge_g]
+                if len(sel):
+                    b = self._plan_bearing.ravel()[sel]
+                    bearing = float(np.arctan2(np.sin(b).mean(), np.cos(b).mean()))
+                rng = cfg.hidden_range_frac * self.inner_edge_range(bearing)
+                xy = rng * np.array([np.cos(bearing), np.sin(bearing)])
+            # range: checked again on the final (refined) point
+            if rng > cfg.max_range_m + 5.0 or height < cfg.min_height_m:
+                continue
+            sl = boxes[g - 1]
+            bbox = (
+                int(sl[1].start),
+                int(sl[0].start),
+                int(sl[1].stop - sl[1].start),
+                int(sl[0].stop - sl[0].start),
+            )
+            pix = (float(self.plan.map_x[r, c]), float(self.plan.map_y[r, c]))
+            out.append(
+                Detection(
+                    float(xy[0]),
+                    float(xy[1]),
+                    float(counts[g] * px_area),
+                    bbox,
+                    pix,
+                    bool(hidden),
+                    bearing,
+                    float("nan"),
+                    float(height),
+                )
+            )
+        return out

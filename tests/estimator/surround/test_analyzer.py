@@ -1,0 +1,151 @@
+"""Surround analysis: which candidates are vehicles, outputs, and a rendered drive."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from estimator.camera.files import load_camera
+from estimator.egomotion.homography import make_state
+from estimator.surround.analyzer import SurroundAnalyzer, SurroundConfig
+from estimator.surround.detection import Detection, DetectionFrame
+
+DT = 1.0 / 15.0  # [s]
+SPEED = 20.0  # [m/s] ego
+X = make_state([0.0, -SPEED, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])  # omni: Y is back
+
+
+def _det(x, y, hidden=False):
+    return Detection(
+        float(x),
+        float(y),
+        5.0,
+        (0, 0, 1, 1),
+        hidden=hidden,
+        bearing_rad=math.atan2(y, x),
+        score=1.0,
+        height_m=1.4,
+    )
+
+
+@pytest.fixture(scope="module")
+def omni():
+    return load_camera("omni-near")
+
+
+def _stub(sa, frames):
+    """Replace the detector's output by the candidate lists ``frames`` (one per call)."""
+    it = iter(frames)
+    h, w = sa.detector.road_s.shape
+
+    def detect(*_a, **_k):
+        cands = next(it)
+        return DetectionFrame(
+            list(cands),
+            np.zeros((h, w), np.float32),
+            np.zeros((h, w), bool),
+            None,
+            cands,
+            None,
+            (sa.camera.width, sa.camera.height),
+        )
+
+    sa.detector.detect = detect
+
+
+def test_steady_vehicle_is_reported_flickering_clutter_is_not(omni):
+    """A vehicle 15 m ahead at the ego's speed is a candidate every frame; clutter
+    appears at random places about every other frame (the structure a rendered
+    roadside produces). Only the vehicle is reported, from vehicle_min_hits on."""
+    cam, mount = omni
+    cfg = SurroundConfig()
+    sa = SurroundAnalyzer(cam, mount, surround=cfg)
+    rng = np.random.default_rng(0)
+    n = 60
+    frames = []
+    for _ in range(n):
+        c = [_det(15.0 + rng.normal(0, 0.3), 4.0 + rng.normal(0, 0.2))]
+        if rng.uniform() < 0.5:
+            c.append(_det(rng.uniform(-20, 20), rng.choice([-1, 1]) * rng.uniform(9, 14)))
+        frames.append(c)
+    _stub(sa, frames)
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    assert sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0) is None  # nothing to compare
+    reported, ids = [], set()
+    for k in range(1, n):
+        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+        reported.append([(d.x_m, d.y_m) for d in sf.detection.detections])
+        ids |= {t.id for t in sf.tracks}
+    hits = [any(abs(x - 15.0) < 2 and abs(y - 4.0) < 1 for x, y in r) for r in reported]
+    false = sum(1 for r in reported for x, y in r if not (abs(x - 15.0) < 2 and abs(y - 4.0) < 1))
+    assert not any(hits[: cfg.vehicle_min_hits - 1])  # not before min hits
+    assert all(hits[cfg.vehicle_min_hits + 2 :])
+    assert false == 0
+    assert len(ids) == 1
+
+
+def test_hidden_candidate_reported_on_its_bearing_at_the_tracks_range(omni):
+    """A vehicle alongside: first seen with its ground point, then only its bearing
+    (hidden). While hidden it is reported on the measured bearing, at the range of
+    its track, nearer the truth than the detector's assumed range."""
+    cam, mount = omni
+    sa = SurroundAnalyzer(cam, mount)
+    frames = [[_det(-9.0 + 0.2 * k, 4.0)] for k in range(12)]
+    for k in range(12, 20):
+        x, y = -9.0 + 0.2 * k, 4.0
+        b = math.atan2(y, x)
+        # the detector's assumed range: 0.6 of the body mask's 7.3 m
+        frames.append([_det(4.4 * math.cos(b), 4.4 * math.sin(b), hidden=True)])
+    _stub(sa, frames)
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
+    # the car gains 3 m/s on the ego car: 0.2 m per frame
+    for k in range(1, 20):
+        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    (d,) = sf.detection.detections
+    assert d.hidden
+    truth = np.array([-9.0 + 0.2 * 18, 4.0])  # frame k reports candidates k - 1
+    assert abs(math.atan2(d.y_m, d.x_m) - math.atan2(truth[1], truth[0])) < 1e-6
+    r, r_true = math.hypot(d.x_m, d.y_m), float(np.linalg.norm(truth))
+    assert abs(r - r_true) < abs(4.4 - r_true) - 0.5  # the track's range beats the assumed one
+
+
+def test_outputs_have_the_fields_the_runner_draws(omni):
+    cam, mount = omni
+    sa = SurroundAnalyzer(cam, mount)
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8)
+    assert sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0) is None
+    sf = sa.step(1, DT, img, X, DT, SPEED, 0.0)
+    assert sf.detection.normalized_difference.shape == (cam.height, cam.width)
+    assert sf.detection.motion_mask.shape == (cam.height, cam.width)
+    assert sf.detection.motion_mask.dtype == bool
+    assert sa.detector.valid.shape == (cam.height, cam.width)
+    assert isinstance(sf.tracks, list)
+
+
+def test_bad_config():
+    with pytest.raises(ValueError):
+        SurroundConfig(vehicle_on=0.3, vehicle_off=0.6)
+
+
+# ------------------------------------------------------------------ a rendered drive
+@pytest.mark.e2e
+def test_rendered_highway_drive_detects_the_vehicle(tmp_path):
+    """highway-omni-near (seed 7), first 40 frames, the real estimator: one vehicle
+    18 m ahead in the next lane at the ego car's speed, guard rails both sides.
+    Measured on this drive: recall 0.82, precision 0.94, median error 1.08 m (frames
+    1-39; the first ~6 frames are the confirmation delay). The thresholds leave a
+    margin of about one frame's miss or false detection."""
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    m = run_scenario(
+        load_scenario("highway-omni-near"), tmp_path, max_frames=40, video=False, progress=False
+    )
+    assert m["detection"]["gt_count"] >= 35
+    assert m["detection"]["recall"] >= 0.75
+    assert m["detection"]["precision"] >= 0.85
+    assert m["localization"]["median_error_m"] <= 1.5
