@@ -213,7 +213,9 @@ def compare(
     ),
     history: Path | None = typer.Option(None, "--history", help=_HISTORY_HELP),
     tolerance: float = typer.Option(0.05, "--tolerance", help="relative tolerance [-]"),
-    abs_tolerance: float = typer.Option(0.005, "--abs-tolerance", help="absolute tolerance floor"),
+    abs_tolerance: float = typer.Option(
+        0.005, "--abs-tolerance", help="absolute tolerance floor of metrics without their own"
+    ),
     show_all: bool = typer.Option(False, "--all", help="also list unchanged metrics"),
 ) -> None:
     """Per-metric deltas of every job of two runs; exit 1 on any regression."""
@@ -270,13 +272,16 @@ def baseline_update(
 def baseline_check(
     run_dir: Path = typer.Argument(..., help="a finished suite folder (with summary.json)"),
     tolerance: float = typer.Option(0.05, "--tolerance", help="relative tolerance [-]"),
-    abs_tolerance: float = typer.Option(0.005, "--abs-tolerance", help="absolute tolerance floor"),
+    abs_tolerance: float = typer.Option(
+        0.005, "--abs-tolerance", help="absolute tolerance floor of metrics without their own"
+    ),
     baselines_dir: Path | None = typer.Option(
         None, "--baselines-dir", help="default scenarios/baselines"
     ),
     show_all: bool = typer.Option(False, "--all", help="also list unchanged metrics"),
 ) -> None:
-    """Exit 1 naming each metric (recall, precision, MOTA, speed RMSE) worse than the baseline."""
+    """Exit 1 naming each metric (recall, precision, MOTA, speed, yaw-rate and A RMSEs) worse
+    than the baseline."""
     from scenarios.regression import BaselineError, check_baseline
 
     tol = _tolerance(tolerance, abs_tolerance)
@@ -289,10 +294,45 @@ def baseline_check(
         raise typer.Exit(1)
 
 
+def results(
+    run_dirs: list[Path] = typer.Argument(..., help="finished `omnibench suite` folders"),
+    out: Path = typer.Option(Path("docs/RESULTS.md"), "--out", help="Markdown page to write"),
+    bench: list[Path] = typer.Option(
+        [], "--bench", help="file holding an `omnibench bench ... --json` output (repeatable)"
+    ),
+    readme: Path | None = typer.Option(
+        None, "--readme", help="also rewrite this README's headline-figures block"
+    ),
+) -> None:
+    """Write the results page (docs/RESULTS.md) from suite runs and benchmark outputs."""
+    from estimator.fileio import write_text
+    from scenarios.results_doc import (
+        ResultsError,
+        command_line,
+        headline_markdown,
+        load_summary,
+        replace_readme_block,
+        results_markdown,
+    )
+
+    try:
+        text = results_markdown(run_dirs, bench, command_line())
+        if readme is not None:
+            block = headline_markdown([load_summary(d) for d in run_dirs])
+            new_readme = replace_readme_block(readme.read_text(), block, str(readme))
+    except (ResultsError, FileNotFoundError) as e:
+        _fail(str(e))
+    write_text(out, text)
+    if readme is not None:
+        write_text(readme, new_readme)
+    console.print(f"wrote {out} ({len(run_dirs)} suite runs, {len(bench)} benchmarks)")
+
+
 def register(app: typer.Typer) -> None:
     """Add the suite, history, compare and baseline commands to ``app``."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     app.command("suite")(suite)
     app.command("history")(history_cmd)
     app.command("compare")(compare)
+    app.command("results")(results)
     app.add_typer(baseline_app, name="baseline")

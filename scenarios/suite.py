@@ -5,6 +5,7 @@ value)::
 
     name: paper                       # default: the file's stem
     description: "..."
+    role: tuning                      # tuning | check | regression (docs/SUITES.md)
     scenarios: [highway-omni-near, intersection-*, ../my/drive.yaml]
     cameras: [omni-near, {preset: omni-far, width: 480, height: 480}]
     estimators: [direct, can-only]    # default [direct]
@@ -44,7 +45,7 @@ import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -89,6 +90,7 @@ KNOWN_METRICS = (
     "ego.angle_nees",
     "ego.mean_speed_mps",
     "ego.frames_compared",
+    "ego.frames_nonfinite",
     "detection.recall",
     "detection.precision",
     "detection.gt_count",
@@ -133,6 +135,8 @@ class Threshold(_Strict):
 class SuiteSpec(_Strict):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9._-]+$")
     description: str = ""
+    # tuning: settings were chosen on it; check: measured only after the choice; regression
+    role: Literal["tuning", "check", "regression"] | None = None
     scenarios: list[str] = Field(min_length=1)
     cameras: list[str | dict[str, Any]] | None = Field(None, min_length=1)
     estimators: list[str] = Field(default_factory=lambda: ["direct"], min_length=1)

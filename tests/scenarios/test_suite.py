@@ -39,7 +39,9 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("paper", 12, 6),
         ("full", 45, 15),
         ("can-bias-sweep", 14, 7),
-        ("heldout", 12, 6),
+        ("validation-omni", 12, 6),
+        ("validation-rect", 8, 8),
+        ("check-rect", 8, 4),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
@@ -48,6 +50,20 @@ def test_shipped_suites_load(name, jobs, drives):
     assert len(s.jobs) == jobs
     assert len({j.render_key for j in s.jobs}) == drives
     assert len({j.job_id for j in s.jobs}) == jobs
+    assert s.spec.role in ("tuning", "check", "regression")
+
+
+def test_shipped_suite_names_match_their_role():
+    """A suite named validation-* chose settings (tuning); check-* did not."""
+    for name in ("validation-omni", "validation-rect", "check-rect"):
+        assert load_suite(name).spec.role == name.split("-")[0].replace("validation", "tuning")
+
+
+def test_unknown_suite_role_is_an_error_naming_it(tmp_path):
+    p = tmp_path / "s.yaml"
+    p.write_text("name: s\nrole: held-out\nscenarios: [highway-omni-near]\n")
+    with pytest.raises(SuiteError, match="role"):
+        load_suite(p)
 
 
 def test_smoke_suite_is_short():

@@ -1,0 +1,240 @@
+"""`omnibench results`: docs/RESULTS.md generated from suite runs and benchmark outputs.
+
+Every figure of the page comes from a file a command wrote: a suite run's
+``summary.json`` (`omnibench suite`) or the JSON line of an ``omnibench bench ...
+--json`` command saved to a file. The page states the command that made it, the
+commit and the date, so that no figure is typed by hand.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shlex
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from scenarios.history import git_commit
+
+# (flattened metrics.json key, column head, format)
+EGO_COLUMNS = (
+    ("ego.speed_rmse_pct", "speed RMSE [%]", "{:.2f}"),
+    ("ego.prior_speed_rmse_pct", "CAN prior [%]", "{:.2f}"),
+    ("ego.yaw_rate_rmse_dps", "yaw rate RMSE [deg/s]", "{:.3f}"),
+    ("ego.angle_rmse_deg", "A roll/pitch RMSE [deg]", "{:.3f}"),
+)
+DETECTION_COLUMNS = (
+    ("detection.gt_count", "vehicle-frames", "{:.0f}"),
+    ("detection.recall", "recall", "{:.2f}"),
+    ("detection.precision", "precision", "{:.2f}"),
+    ("tracking.mota", "MOTA", "{:.2f}"),
+    ("tracking.idf1", "IDF1", "{:.2f}"),
+    ("tracking.hota", "HOTA", "{:.2f}"),
+    ("localization.median_error_m", "median position error [m]", "{:.2f}"),
+)
+ROLE_NOTE = {
+    "tuning": "tuning suite: settings were chosen on these drives (not held out)",
+    "check": "check suite: rendered and measured only after the settings were chosen",
+    "regression": "regression suite: guards the figures against changes",
+    None: "role not declared",
+}
+
+
+class ResultsError(ValueError):
+    """A suite folder or benchmark file that cannot be read; names the path."""
+
+
+def _fmt(value: Any, spec: str) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return spec.format(value)
+
+
+def _metrics(job: dict[str, Any]) -> dict[str, Any]:
+    m = dict(job.get("metrics") or {})
+    speed = m.get("ego.mean_speed_mps")
+    prior = m.get("ego.prior_speed_rmse_mps")
+    if speed and prior is not None:  # the prior's RMSE in % of the mean speed, like the estimate's
+        m["ego.prior_speed_rmse_pct"] = 100.0 * prior / speed
+    return m
+
+
+def load_summary(run_dir: Path) -> dict[str, Any]:
+    p = Path(run_dir) / "summary.json"
+    if not p.is_file():
+        raise ResultsError(f"{run_dir}: no summary.json (not a finished `omnibench suite` folder)")
+    try:
+        return json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise ResultsError(f"{p}: not valid JSON ({e})") from None
+
+
+def load_bench(path: Path) -> dict[str, Any]:
+    """The last JSON line of a file holding an ``omnibench bench ... --json`` output."""
+    p = Path(path)
+    if not p.is_file():
+        raise ResultsError(f"{p}: benchmark file not found")
+    for line in reversed(p.read_text().splitlines()):
+        if line.strip().startswith("{"):
+            try:
+                return json.loads(line)
+            except json.JSONDecodeError as e:
+                raise ResultsError(f"{p}: last JSON line is not valid ({e})") from None
+    raise ResultsError(f"{p}: no JSON line (run the bench command with --json)")
+
+
+def _table(heads: list[str], rows: list[list[str]]) -> list[str]:
+    out = ["| " + " | ".join(heads) + " |", "|" + " --- |" * len(heads)]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return out
+
+
+def suite_section(summary: dict[str, Any]) -> list[str]:
+    """Markdown lines of one suite run: its role, provenance and per-job tables."""
+    jobs = [j for j in summary.get("jobs", []) if j.get("status") == "ok"]
+    failed = [j for j in summary.get("jobs", []) if j.get("status") != "ok"]
+    dirty = " (with uncommitted changes)" if summary.get("dirty") else ""
+    lines = [
+        f"## Suite `{summary.get('suite')}`",
+        "",
+        f"*{ROLE_NOTE.get(summary.get('role'), ROLE_NOTE[None])}.* "
+        f"{summary.get('description', '')}",
+        "",
+        f"Run `{summary.get('run_id')}`, commit `{summary.get('commit')}`{dirty}, finished "
+        f"{summary.get('finished_at')}: `omnibench suite {summary.get('suite')} --out DIR`.",
+        "",
+    ]
+    key_heads = ["drive", "camera", "estimator", "seed", "frames"]
+
+    def keys(j: dict[str, Any]) -> list[str]:
+        m = j.get("metrics") or {}
+        return [
+            j.get("scenario", ""),
+            j.get("camera", ""),
+            j.get("estimator", ""),
+            str(j.get("seed", "")),
+            _fmt(m.get("frames"), "{:.0f}"),
+        ]
+
+    rows = [keys(j) + [_fmt(_metrics(j).get(k), f) for k, _, f in EGO_COLUMNS] for j in jobs]
+    lines += ["Ego-motion:", ""] + _table(key_heads + [h for _, h, _ in EGO_COLUMNS], rows)
+    # every job that evaluated vehicles (detection runs on each estimator's compensation)
+    det = [j for j in jobs if (j.get("metrics") or {}).get("detection.gt_count")]
+    if det:
+        cols = DETECTION_COLUMNS
+        rows = [keys(j) + [_fmt(_metrics(j).get(k), f) for k, _, f in cols] for j in det]
+        heads = key_heads + [h for _, h, _ in DETECTION_COLUMNS]
+        lines += ["", "Surround detection and tracking:", ""] + _table(heads, rows)
+    if failed:
+        lines += ["", f"{len(failed)} jobs did not finish:"]
+        lines += [f"- {j.get('label')}: {j.get('status')} {j.get('error') or ''}" for j in failed]
+    return lines + [""]
+
+
+def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
+    rows = []
+    for path, b in benches:
+        what = b.get("bench") or path.stem
+        median = b.get("ms_per_frame")
+        p90 = b.get("p90_ms_per_frame")
+        fps = b.get("frames_per_s") or (1000.0 / median if median else None)
+        rows.append(
+            [
+                what,
+                _fmt(median, "{:.1f}"),
+                _fmt(p90, "{:.1f}"),
+                _fmt(fps, "{:.2f}"),
+                str(b.get("frames", "")),
+            ]
+        )
+    heads = ["benchmark", "median [ms/frame]", "p90 [ms/frame]", "frames/s", "frames timed"]
+    return ["## Speed", "", "On this machine, one `omnibench bench ... --json` each.", ""] + (
+        _table(heads, rows) + [""]
+    )
+
+
+def results_markdown(
+    run_dirs: list[Path], bench_files: list[Path], command: str, now: datetime | None = None
+) -> str:
+    """The whole page. Raises ResultsError naming the first unreadable input."""
+    summaries = [load_summary(d) for d in run_dirs]
+    benches = [(Path(p), load_bench(p)) for p in bench_files]
+    commit, dirty = git_commit()
+    when = (now or datetime.now(UTC)).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [
+        "# Results",
+        "",
+        "Generated, not written by hand: "
+        f"`{command}` at commit `{commit}`{' (with uncommitted changes)' if dirty else ''} "
+        f"on {when}. Each suite's own run and commit are stated with it. Which suites are "
+        "tuning and which are check suites: [SUITES.md](SUITES.md); what each figure means: "
+        "[FORMATS.md](FORMATS.md).",
+        "",
+    ]
+    if benches:
+        lines += bench_section(benches)
+    for s in summaries:
+        lines += suite_section(s)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+README_BEGIN = "<!-- headline figures: generated by `omnibench results --readme` -->"
+README_END = "<!-- end of headline figures -->"
+
+
+def _span(values: list[float], spec: str) -> str:
+    vals = [v for v in values if v is not None and math.isfinite(v)]
+    if not vals:
+        return "–"
+    lo, hi = min(vals), max(vals)
+    return spec.format(lo) if lo == hi else f"{spec.format(lo)}–{spec.format(hi)}"
+
+
+def headline_markdown(summaries: list[dict[str, Any]], estimator: str = "direct") -> str:
+    """One row per suite run: the range over its ``estimator`` jobs of the main figures."""
+    rows = []
+    for s in summaries:
+        jobs = [
+            _metrics(j)
+            for j in s.get("jobs", [])
+            if j.get("status") == "ok" and j.get("estimator") == estimator
+        ]
+        det = [m for m in jobs if m.get("detection.gt_count")]
+        rows.append(
+            [
+                f"`{s.get('suite')}`",
+                str(s.get("role") or "–"),
+                str(len(jobs)),
+                _span([m.get("ego.speed_rmse_pct") for m in jobs], "{:.2f}"),
+                _span([m.get("ego.yaw_rate_rmse_dps") for m in jobs], "{:.2f}"),
+                _span([m.get("ego.angle_rmse_deg") for m in jobs], "{:.3f}"),
+                _span([m.get("detection.recall") for m in det], "{:.2f}"),
+            ]
+        )
+    heads = [
+        "suite",
+        "role",
+        f"{estimator} runs",
+        "speed RMSE [%]",
+        "yaw rate RMSE [deg/s]",
+        "A RMSE [deg]",
+        "detection recall",
+    ]
+    return "\n".join(_table(heads, rows))
+
+
+def replace_readme_block(text: str, block: str, where: str = "README") -> str:
+    """``text`` with the part between README_BEGIN and README_END replaced by ``block``."""
+    if README_BEGIN not in text or README_END not in text:
+        raise ResultsError(
+            f"{where}: no headline block (lines {README_BEGIN!r} ... {README_END!r})"
+        )
+    head, rest = text.split(README_BEGIN, 1)
+    _, tail = rest.split(README_END, 1)
+    return f"{head}{README_BEGIN}\n{block}\n{README_END}{tail}"
+
+
+def command_line() -> str:
+    return "omnibench " + " ".join(shlex.quote(a) for a in sys.argv[1:])
