@@ -42,6 +42,7 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("validation-omni", 12, 6),
         ("validation-rect", 8, 8),
         ("check-rect", 8, 4),
+        ("check-omni", 20, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
@@ -55,7 +56,7 @@ def test_shipped_suites_load(name, jobs, drives):
 
 def test_shipped_suite_names_match_their_role():
     """A suite named validation-* chose settings (tuning); check-* did not."""
-    for name in ("validation-omni", "validation-rect", "check-rect"):
+    for name in ("validation-omni", "validation-rect", "check-rect", "check-omni"):
         assert load_suite(name).spec.role == name.split("-")[0].replace("validation", "tuning")
 
 
