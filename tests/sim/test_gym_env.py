@@ -1,4 +1,4 @@
-"""sim/gym_env.py: gymnasium ids, the omni observation type, the wrapper, real renders."""
+"""sim/gym_env.py: the gymnasium ids, OmniHighwayEnv and its observations (real renders)."""
 
 from __future__ import annotations
 
@@ -16,21 +16,15 @@ from gymnasium.utils.env_checker import check_env
 
 import sim
 from sim.camera_motion import T_world_car, camera_pose
-from sim.gym_env import (
-    ENV_ID,
-    OBSERVATION_TYPE,
-    OmniHighwayEnv,
-    OmniObservation,
-    OmniObservationWrapper,
-    TiledWorld,
-)
+from sim.gym_env import ENV_ID, OmniHighwayEnv
 from sim.highway import (
     HEIGHT_RANGE_M,
     VehicleState,
-    road_geometry,
     world_from_hw_xy,
     world_yaw_from_hw_heading,
 )
+from sim.observation_config import OBSERVATION_TYPE
+from sim.omni_observation import OmniObservation
 from sim.scene import vehicle_corners_world
 
 # highway-env's own notice on merge-v0/roundabout-v0 ("out of date"): not ours
@@ -126,6 +120,22 @@ def test_partial_observation_config_updates_the_defaults():
         assert _renderer(e).camera.max_elevation_deg == 15.0  # omni-far
     finally:
         e.close()
+
+
+def test_the_env_builds_its_observation_without_the_factory_patch(monkeypatch):
+    """OmniHighwayEnv.define_spaces builds the omni type itself: with highway-env's own
+    factory back in place, the env still has it, while merge-v0 cannot name it."""
+    from highway_env.envs.common import abstract
+
+    monkeypatch.setattr(abstract, "observation_factory", abstract.observation_factory.__wrapped__)
+    e = gymnasium.make(ENV_ID, config={"observation": {"width": 48}})
+    try:
+        assert isinstance(e.unwrapped.observation_type, OmniObservation)
+        assert e.observation_space.shape == (128, 48, 3)
+    finally:
+        e.close()
+    with pytest.raises(ValueError, match="Unknown observation type"):
+        gymnasium.make("merge-v0", config={"observation": {"type": OBSERVATION_TYPE}})
 
 
 def test_bad_config_names_the_key():
@@ -229,95 +239,3 @@ def test_close_releases_the_gl_context_and_may_be_repeated():
     e.close()
     assert not r.is_open
     e.close()
-
-
-# --------------------------------------------------------------------------- other envs
-
-
-def test_wrapper_on_merge_env():
-    e = OmniObservationWrapper(
-        gymnasium.make("merge-v0"),
-        camera="omni-far",
-        width=64,
-        height=64,
-        vehicle_ids=True,
-        keep_original=True,
-    )
-    try:
-        assert set(e.observation_space.spaces) == {"image", "vehicle_ids", "original"}
-        obs, _ = e.reset(seed=2)
-        for _ in range(2):
-            assert e.observation_space.contains(obs)
-            assert obs["image"].shape == (64, 64, 3) and obs["original"].shape == (5, 5)
-            seen = set(np.unique(obs["vehicle_ids"]).tolist()) - {-1}
-            assert 0 in seen and seen <= set(e.vehicles_by_id())
-            obs, *_ = e.step(1)
-        r = e.omni.renderer
-    finally:
-        e.close()
-    assert not r.is_open
-
-
-def test_observation_type_by_name_in_another_env_config_with_sensor_effects():
-    """Any highway-env config can name the type; other types still work; the sensor
-    effects and vibration run."""
-    cfg = {
-        "type": OBSERVATION_TYPE,
-        "camera": {"preset": "omni-near", "width": 64, "height": 64},
-        "sensor": {"noise_std": 2.0, "motion_blur": True, "gain_drift": 0.03, "jpeg_quality": 90},
-        # small: llvmpipe's anisotropic filtering is pathologically slow (seconds per
-        # face) for cameras tilted by ~0.2-15 deg (measured on Mesa 22.3)
-        "vibration": {"amplitude_deg": 0.05, "frequency_hz": 2.0},
-    }
-    e = gymnasium.make("roundabout-v0", config={"observation": cfg})
-    try:
-        assert isinstance(e.unwrapped.observation_type, OmniObservation)
-        obs, _ = e.reset(seed=0)
-        obs2, *_ = e.step(1)
-        assert e.observation_space.contains(obs2) and obs2.shape == (64, 64, 3)
-        assert not np.array_equal(obs, obs2)
-    finally:
-        e.close()
-    k = gymnasium.make("roundabout-v0", config={"observation": {"type": "Kinematics"}})
-    assert k.reset(seed=0)[0].shape == (5, 5)
-    k.close()
-
-
-def test_motion_blur_blurs_the_frames_after_the_first():
-    """With the sensor's motion blur (a long exposure here), the frame after a step differs
-    from the same frame without it; the first frame (no motion before it) hardly does (the
-    depth pass that the blur needs moves a few pixels). The blur was once switched off by
-    its own flag's name being reused."""
-    frames = {}
-    for blur in (True, False):
-        sensor = {"noise_std": 0, "motion_blur": blur, "exposure_s": 0.05, "gain_drift": 0}
-        sensor.update(jpeg_quality=None, vignetting=0)
-        cfg = {"type": OBSERVATION_TYPE, "sensor": sensor, "vibration": None}
-        cfg["camera"] = {"preset": "omni-near", "width": 64, "height": 64}
-        e = gymnasium.make("highway-v0", config={"observation": cfg})
-        try:
-            first, _ = e.reset(seed=0)
-            second, *_ = e.step(1)
-        finally:
-            e.close()
-        frames[blur] = first.astype(float), second.astype(float)
-    change = [np.abs(b - s).mean() for b, s in zip(frames[True], frames[False], strict=True)]
-    assert change[0] < 0.1 and change[1] > 0.3, change  # [DN] (measured 0.02 and 1.34)
-
-
-def test_tiled_world_is_deterministic_and_rebuilt_only_when_the_window_moves():
-    e = gymnasium.make("merge-v0")
-    e.reset(seed=0)
-    road = road_geometry(e)
-    e.close()
-    world = TiledWorld(tile_m=50.0, view_range_m=60.0)
-    world.reset(road, (7, 0))
-    first = world.window_meshes(100.0, -5.0)
-    assert [m.metadata["name"] for m in first] == ["road", "markings", "ground", "roadside"]
-    assert world.window_meshes(105.0, -6.0) is None  # same tiles
-    moved = world.window_meshes(200.0, -5.0)
-    assert moved is not None and world.builds == 2
-    again = TiledWorld(tile_m=50.0, view_range_m=60.0)
-    again.reset(road, (7, 0))
-    for a, b in zip(first, again.window_meshes(100.0, -5.0), strict=True):
-        assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
