@@ -48,7 +48,8 @@ _MIN_INLIER_VAR = 0.05  # eq. 21 variance is floored at this fraction of R (neve
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """Process model, priors and CAN noise of the filter (units beside each value).
+    """Process model, priors and CAN noise of the filter: one line each, [unit] and range
+    (checked by `estimator.egomotion.direct_config.check_settings`).
 
     Axes "forward / lateral / vertical" are the car's x, y, z; "plane / normal"
     split A into rotations about axes in the road plane (roll, pitch: vibration)
@@ -56,40 +57,30 @@ class FilterConfig:
     """
 
     # time update (eq. 19)
-    V_walk_mps: tuple[float, float, float] = (1.5, 0.5, 0.2)  # [m/s/sqrt(s)] fwd, lat, vert
-    W_walk_rps: float = 0.3  # [rad/s/sqrt(s)] random walk of W about axes in the road plane
-    # (roll and pitch rates: the camera's vibration on its mount, the body's motion)
-    W_walk_yaw_rps: float = 0.1  # [rad/s/sqrt(s)] random walk of the yaw rate (about the
-    # road normal); abrupt turns beyond it are the estimator's manoeuvre retry
-    W_tau_s: float = 0.5  # [s] over a frame pair that measures nothing (the prior kept),
-    # the roll/pitch rates (vibration: zero-mean) fall back towards 0 with this time constant
-    # (`IteratedEKF.settle_rates`); without it A settles at A_tau_s x the last fit's rate
-    A_from_W: bool = True  # [-] A moves with the roll/pitch part of W between frame pairs
-    A_walk_rad: float = float(np.radians(0.1))  # [rad/sqrt(s)] change of A that W does not
-    # explain (road slope changes), roll/pitch
-    A_tau_s: float = 1.0  # [s] correlation time of A (mean-reverting towards the mount)
-    rate_bias_tau_s: float = 0.0  # [s] the roll/pitch rates of the camera average to zero
-    # (A is bounded): the running mean of the measured ones over this time is the images'
-    # bias, left out of A's integration (`IteratedEKF.learn_rate_bias`); 0: off
-    A_sigma_plane_rad: float = float(np.radians(1.0))  # [rad] prior std, roll/pitch
-    A_sigma_normal_rad: float = float(np.radians(0.05))  # [rad] stationary std, yaw
+    # random walk of V, forward / lateral / vertical in car axes [m/s/sqrt(s)], >= 0 each
+    V_walk_mps: tuple[float, float, float] = (1.5, 0.5, 0.2)
+    W_walk_rps: float = 0.3  # random walk of the roll/pitch rates [rad/s/sqrt(s)], >= 0
+    W_walk_yaw_rps: float = 0.1  # random walk of the yaw rate [rad/s/sqrt(s)], >= 0
+    W_tau_s: float = 0.5  # roll/pitch rates decay to 0 over unmeasured pairs [s], > 0 (inf: kept)
+    A_from_W: bool = True  # A moves with the roll/pitch part of W between frame pairs
+    A_walk_rad: float = float(np.radians(0.1))  # roll/pitch change W leaves [rad/sqrt(s)], >= 0
+    A_tau_s: float = 1.0  # correlation time of A, reverting to the mount [s], > 0
+    rate_bias_tau_s: float = 0.0  # averaging time of the roll/pitch rates' bias [s], >= 0 (0: off)
+    A_sigma_plane_rad: float = float(np.radians(1.0))  # prior std of A's roll/pitch [rad], > 0
+    A_sigma_normal_rad: float = float(np.radians(0.05))  # stationary std of A's yaw [rad], > 0
     # prior of the first frame pair (before the CAN speed)
-    V0_sigma_mps: tuple[float, float, float] = (30.0, 1.0, 0.3)  # [m/s] fwd, lat, vert
-    W0_sigma_rps: float = 0.2  # [rad/s]
+    # prior std of V, forward / lateral / vertical in car axes [m/s], > 0 each
+    V0_sigma_mps: tuple[float, float, float] = (30.0, 1.0, 0.3)
+    W0_sigma_rps: float = 0.2  # prior std of W [rad/s], > 0
     # CAN speed (a pseudo-measurement of the forward speed, `can_speed_update`)
-    can_rel_sigma: float = 0.12  # [-] relative std: a 10 % scale error stays correctable
-    can_abs_sigma_mps: float = 0.3  # [m/s] absolute std (noise, quantisation)
-    nonholonomic_sigma_mps: float = 0.2  # [m/s] sideways speed of the rear axle (tyre
-    # slip) in the kinematic pseudo-measurement (`nonholonomic_update`); <= 0: off
-    vertical_speed_sigma_mps: float = 0.0  # [m/s] the camera's speed along the road normal
-    # (the body's heave on its suspension) in the pseudo-measurement of a car that stays on
-    # the road (`vertical_speed_update`); <= 0: off
-    can_gate_rel: float = 0.3  # [-] a CAN speed that disagrees with the predicted forward
-    # speed by more than this fraction (plus 3 sigma) means the state is lost: V and the
-    # yaw rate are re-initialised from the CAN (`can_consistent`); <= 0: never
+    can_rel_sigma: float = 0.12  # relative std of the CAN speed [-], >= 0
+    can_abs_sigma_mps: float = 0.3  # absolute std of the CAN speed [m/s], > 0
+    nonholonomic_sigma_mps: float = 0.2  # std of the rear axle's side slip [m/s], >= 0 (0: off)
+    vertical_speed_sigma_mps: float = 0.0  # std of the road-normal speed [m/s], >= 0 (0: off)
+    can_gate_rel: float = 0.3  # relative CAN disagreement that resets V [-], >= 0 (0: never)
     # time gaps
-    nominal_dt_s: float | None = None  # [s] expected frame interval; None: learnt
-    gap_factor: float = 2.5  # [-] dt > gap_factor * nominal is a gap (flagged)
+    nominal_dt_s: float | None = None  # expected frame interval [s], > 0; None: learnt
+    gap_factor: float = 2.5  # dt beyond this x the nominal is a gap [-], >= 1
 
 
 def _car_cov(R_car_cam: np.ndarray, sig_car: tuple[float, float, float]) -> np.ndarray:
