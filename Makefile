@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[dev,ray]"
 	# pyrender 0.1.45 pins PyOpenGL==3.1.0, whose OSMesa binding lacks
-	# OSMesaCreateContextAttribs: install a working PyOpenGL over it (NOTES.md).
+	# OSMesaCreateContextAttribs: install a working PyOpenGL over it (docs/INSTALL.md).
 	$(PY) -m pip install --quiet "PyOpenGL==3.1.10"
 	@touch $(STAMP)
 

@@ -12,7 +12,7 @@ import csv
 import io as _io
 import math
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,7 +71,7 @@ def write_egomotion_csv(path: Path, records: list, mount: CameraMount) -> None:
 
 def estimate_frames(
     frames: Iterable[np.ndarray],
-    times_s: np.ndarray,
+    times_s: Sequence[float] | np.ndarray | Iterable[float],
     can: CanTrack,
     camera: CameraModel,
     mount: CameraMount,
@@ -79,10 +79,15 @@ def estimate_frames(
     progress: bool = False,
     keep_images: bool = False,
     road_masks: Iterable[np.ndarray] | None = None,
+    n_frames: int | None = None,
     **config,
 ) -> EstimateRun:
     """Step the named estimator over frames; returns every per-frame record.
 
+    times_s: each frame's time [s], an array or a lazy iterable (e.g.
+    `estimator.recording.frame_times`: any number of frames); there must be one for
+    every frame. n_frames: the number of frames, for the progress bar (default: the
+    number of times, when they have a length).
     road_masks: optional (H, W) bool road mask per frame (`estimator.recording.
     iter_road_masks`); there must be one for every frame.
     """
@@ -91,13 +96,18 @@ def estimate_frames(
     est = make_estimator(estimator, camera, mount, **config)
     records, times = [], []
     masks = iter(road_masks) if road_masks is not None else None
+    if n_frames is None and hasattr(times_s, "__len__"):
+        n_frames = len(times_s)
+    frame_times = iter(times_s)
     # one BLAS thread: the estimator's matrices are small, and OpenBLAS's extra threads
     # spin on the cores that a suite's other jobs use (two rectilinear drives at once on
     # two cores: 11.5-18.8 s against 19.0-25.2 s; the same estimates)
     with threadpool_limits(limits=1, user_api="blas"):
-        for k, img in track(enumerate(frames), len(times_s), f"estimate ({estimator})", progress):
-            if k >= len(times_s):
-                raise ValueError(f"more frames than timestamps ({len(times_s)})")
+        for k, img in track(enumerate(frames), n_frames, f"estimate ({estimator})", progress):
+            t_k = next(frame_times, None)
+            if t_k is None:
+                raise ValueError(f"more frames than timestamps ({k})")
+            t_k = float(t_k)
             mask = None
             if masks is not None:
                 mask = next(masks, None)
@@ -105,7 +115,7 @@ def estimate_frames(
                     raise ValueError(f"fewer road masks than frames: none for frame {k}")
             t0 = time.perf_counter()
             try:
-                rec = est.step(img, float(times_s[k]), can.at(float(times_s[k])), road_mask=mask)
+                rec = est.step(img, t_k, can.at(t_k), road_mask=mask)
             except ValueError as e:
                 if mask is None or "road_mask" not in str(e):
                     raise

@@ -152,6 +152,31 @@ def iter_frames(source: str | Path) -> Iterator[np.ndarray]:
         cap.release()
 
 
+def count_frames(source: str | Path) -> int | None:
+    """Number of frames of a folder of PNG/JPEG images (its image files) or of a video (the
+    count its container states, which some formats only estimate); None when unknown."""
+    source = Path(source)
+    if source.is_dir():
+        return len(_image_files(source, (".png", ".jpg", ".jpeg"), "PNG/JPEG frames"))
+    if not source.is_file():
+        raise RecordingError(f"video not found: {source}")
+    cap = cv2.VideoCapture(str(source))
+    n = cap.get(cv2.CAP_PROP_FRAME_COUNT) if cap.isOpened() else 0.0
+    cap.release()
+    return int(n) if n and math.isfinite(n) and n > 0 else None
+
+
+def frame_times(fps: float) -> Iterator[float]:
+    """Times [s] of frames 0, 1, 2, ... at ``fps`` [Hz] (> 0), without end: as many as the
+    recording has frames, whatever its length."""
+    if not (math.isfinite(fps) and fps > 0):
+        raise RecordingError(f"frame rate must be finite and > 0, got {fps}")
+    k = 0
+    while True:
+        yield k / fps
+        k += 1
+
+
 def video_fps(source: str | Path) -> float | None:
     """Frame rate stored in a video file (None for a folder or when unknown)."""
     source = Path(source)

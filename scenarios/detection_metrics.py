@@ -17,7 +17,7 @@ is at most ``gate_m`` (`MetricsConfig`). Pairs beyond the gate never match.
 - tracking: motmetrics (MOTA, IDF1, id switches) from a ``MOTAccumulator`` fed
   with the footprint distances, NaN beyond the gate. The matrix is built here
   with numpy: ``motmetrics.distances.norm2squared_matrix`` calls ``np.asfarray``,
-  removed in NumPy 2 (shared/NOTES.md).
+  removed in NumPy 2 (docs/INSTALL.md).
 - HOTA: ``trackeval.metrics.HOTA().eval_sequence`` on a data dict built here,
   similarity ``max(0, 1 - d / gate_m)`` (1 on or inside the footprint, 0 at the
   gate); reported as the mean of HOTA over its alpha thresholds 0.05 ... 0.95.

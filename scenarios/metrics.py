@@ -123,12 +123,14 @@ def ego_metrics(series: dict) -> dict:
     """The ``ego`` section of metrics.json.
 
     ``angle_rmse_deg`` is the RMSE of A's roll and pitch (car axes x and y, over both and
-    every frame): the camera's vibration, which the issue's A target is about; the
+    every frame): the camera's vibration, what A is estimated for; the
     mount's yaw about the car's z axis is ``angle_yaw_rmse_deg``, apart. CAN-only keeps A
-    at the mount (A = 0), so its ``prior_angle_rmse_deg`` is the truth's RMS.
+    at the mount (A = 0), so its ``prior_angle_rmse_deg`` is the truth's RMS. Every RMSE
+    is over the ``frames_compared`` frames whose estimate is finite; ``frames_nonfinite``
+    counts the frames with truth whose estimate is NaN or infinite (`finite_estimates`).
     """
-    s = series
-    mean_speed = float(np.nanmean(np.abs(s["speed_gt"])))
+    s = finite_estimates(series)
+    mean_speed = float(np.nanmean(np.abs(s["speed_gt"]))) if len(s["t_s"]) else float("nan")
     speed_rmse = _rmse(s["speed_est"] - s["speed_gt"])
     dA = s["A_est"] - s["A_gt"]  # (N, 3) [deg] roll, pitch, yaw (car axes)
     return {
@@ -148,7 +150,23 @@ def ego_metrics(series: dict) -> dict:
         else float("nan"),
         "mean_speed_mps": mean_speed,
         "frames_compared": len(s["t_s"]),
+        "frames_nonfinite": len(series["t_s"]) - len(s["t_s"]),
     }
+
+
+def finite_estimates(series: dict) -> dict:
+    """The frames of an `ego_series` whose estimate (speed, yaw rate and A) is finite.
+
+    A NaN or infinite estimate has no error to square: `ego_metrics` leaves such frames
+    out of every RMSE (the prior's too, so that both are over the same frames) and out of
+    ``frames_compared``, and counts them in ``frames_nonfinite``.
+    """
+    ok = (
+        np.isfinite(series["speed_est"])
+        & np.isfinite(series["yaw_est"])
+        & np.all(np.isfinite(series["A_est"]), axis=1)
+    )
+    return {k: np.asarray(v)[ok] for k, v in series.items()}
 
 
 def ego_consistency(records: list, gt: list[dict], mount: CameraMount) -> dict:

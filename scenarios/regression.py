@@ -6,7 +6,10 @@ errors, id switches, the compensation residual ratio). A metric is a
 *regression* when it moved the bad way by more than the tolerance::
 
     worse = -direction * (new - base)
-    regression  <=>  worse > max(rel_tol * |base|, abs_tol)
+    regression  <=>  worse > max(rel_tol * |base|, abs_tol(metric))
+
+``abs_tol(metric)`` is the metric's own absolute floor (`ABS_TOLERANCES`, in its unit)
+where it has one, else the general floor.
 
 A finite value that became NaN is a regression; NaN on both sides is equal; a
 job that errored where the baseline has metrics is a regression of every metric.
@@ -14,14 +17,15 @@ job that errored where the baseline has metrics is a regression of every metric.
 Baselines: ``scenarios/baselines/<suite>.json`` holds, per job id, the job's
 label and flat metrics; `update_baseline` writes one from a suite run's
 summary.json (on purpose: it reports what changed), `check_baseline` compares a
-run against it on `BASELINE_METRICS` (recall, precision, MOTA, speed RMSE).
+run against it on `BASELINE_METRICS` (recall, precision, MOTA, speed, yaw-rate and A
+RMSEs).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +49,7 @@ DIRECTIONS: dict[str, int] = {
     "ego.roll_rmse_deg": -1,
     "ego.pitch_rmse_deg": -1,
     "ego.angle_yaw_rmse_deg": -1,
+    "ego.frames_nonfinite": -1,
     "localization.median_error_m": -1,
     "localization.p90_error_m": -1,
     "tracking.id_switches": -1,
@@ -57,27 +62,47 @@ BASELINE_METRICS = (
     "detection.precision",
     "tracking.mota",
     "ego.speed_rmse_mps",
+    "ego.yaw_rate_rmse_dps",
+    "ego.angle_rmse_deg",
 )
+
+# absolute floors of metrics whose unit the general floor (`Tolerance.abs_`) does not suit
+ABS_TOLERANCES: dict[str, float] = {
+    "ego.yaw_rate_rmse_dps": 0.05,  # [deg/s] >= 0; ~7 % of the direct estimator's 0.6-0.9
+    "ego.angle_rmse_deg": 0.01,  # [deg] >= 0; ~5 % of the direct estimator's A RMSE 0.16-0.25
+    "ego.frames_nonfinite": 0.5,  # [frames] >= 0; one more non-finite estimate regresses
+}
 
 
 @dataclass(frozen=True)
 class Tolerance:
-    """A metric regresses when worse by more than max(rel * |base|, abs_)."""
+    """A metric regresses when worse by more than max(rel * |base|, its absolute floor):
+    ``per_metric[metric]`` where it has one, else ``abs_``."""
 
-    rel: float = 0.05  # [-] fraction of the baseline value
-    abs_: float = 0.005  # [metric units] floor, for values near 0
+    rel: float = 0.05  # [-] >= 0, fraction of the baseline value
+    abs_: float = 0.005  # [metric units] >= 0, floor for values near 0 (no own floor)
+    per_metric: dict[str, float] = field(default_factory=lambda: dict(ABS_TOLERANCES), hash=False)
 
     def __post_init__(self) -> None:
         if not (self.rel >= 0 and self.abs_ >= 0):
             raise ValueError(f"tolerances must be >= 0, got rel={self.rel}, abs={self.abs_}")
+        bad = {k: v for k, v in self.per_metric.items() if not v >= 0}
+        if bad:
+            raise ValueError(f"absolute tolerances must be >= 0, got {bad}")
 
-    def allowed(self, base: float) -> float:
-        return max(self.rel * abs(base), self.abs_)
+    def abs_for(self, metric: str | None) -> float:
+        """The absolute floor of ``metric`` [its unit]."""
+        return self.per_metric.get(metric, self.abs_) if metric else self.abs_
+
+    def allowed(self, base: float, metric: str | None = None) -> float:
+        return max(self.rel * abs(base), self.abs_for(metric))
 
     def describe(self) -> str:
+        own = ", ".join(f"{k} {v:g}" for k, v in self.per_metric.items())
         return (
             f"a metric regresses when worse by more than {100 * self.rel:g} % of the "
-            f"baseline value and more than {self.abs_:g} (absolute)"
+            f"baseline value and more than {self.abs_:g} (absolute"
+            + (f"; own floors: {own})" if own else ")")
         )
 
 
@@ -126,7 +151,7 @@ def is_regression(metric: str, base: float, new: float, tol: Tolerance) -> tuple
     if base_nan:
         return False, "was NaN"
     worse = -direction * (new - base)
-    return worse > tol.allowed(base), ""
+    return worse > tol.allowed(base, metric), ""
 
 
 def _isnan(v: Any) -> bool:

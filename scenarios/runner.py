@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.camera.files import load_camera
-from estimator.egomotion.baselines import make_estimator
+from estimator.egomotion.baselines import check_estimator, make_estimator
 from estimator.egomotion.homography import homography, make_state
 from estimator.fileio import atomic_write, write_json, write_png, write_text
 from estimator.geometry import rot_z
@@ -100,7 +100,11 @@ def run_scenario(
     road_mask: ``"gt"`` gives the estimator each frame's true road mask (what lies
     within ``MIN_HEIGHT_M`` of the road, from the range images): the speed it then
     reaches is what a perfect road segmentation would allow, a diagnostic ceiling.
+    The cheap inputs (estimator, max_frames, road_mask) are checked before any rendering.
     """
+    check_estimator(estimator)
+    if max_frames is not None and max_frames < 1:
+        raise ValueError(f"max_frames must be >= 1 (or None: every frame), got {max_frames}")
     if road_mask not in (None, "gt"):
         raise ValueError(f"road_mask must be 'gt' or None, got {road_mask!r}")
     out_dir = Path(out_dir)

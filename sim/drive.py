@@ -313,6 +313,13 @@ class DriveRenderer:
             self._scenes = WorldScenes(static, id_static)
             self._rays = self.camera.pixel_rays()
             self._mask = imaged_mask(self.camera)
+            # the faces that only show the car body are rendered once (OmniRenderer's
+            # cache_body_faces): always at frame 0, whatever frame this render starts at,
+            # so that a resumed render is byte-identical to an uninterrupted one
+            self._scenes.set_vehicles(self.frames[0])
+            T0 = self.poses[0].T_world_actual
+            self._renderer.keep_body_faces(self._scenes.color, T0)
+            self._renderer.keep_body_faces(self._scenes.ids, T0, flat=True)
         return self._renderer
 
     def close(self) -> None:

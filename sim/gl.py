@@ -1,14 +1,15 @@
 """Import pyrender with the OSMesa platform, in one place, with its fixes.
 
-- PYOPENGL_PLATFORM must be set before anything imports OpenGL (NOTES.md).
+- PYOPENGL_PLATFORM must be set before anything imports OpenGL (OSMesa: docs/INSTALL.md).
 - pyrender 0.1.45 still uses ``np.infty`` (removed in NumPy 2) in ``Mesh.bounds``;
   the alias below keeps those code paths working.
 - pyrender caches compiled shader programs under a key that starts with
   ``OpenGL.contextdata.getContext()``. With OSMesa that call returns a *new*
   pointer object every time, so the cache never hits: every primitive's program
-  was compiled again on every render (the per-node cost in NOTES.md) and the
-  cache grew without bound. `_get_program` keys the cache by the context's
-  address instead. Measured here: 5 cube faces of a 5-mesh scene, 190 -> ~40 ms.
+  was compiled again on every render (the per-mesh-node cost of OSMesa rendering,
+  docs/INSTALL.md) and the cache grew without bound. `_get_program` keys the cache
+  by the context's address instead. Measured here: 5 cube faces of a 5-mesh scene,
+  190 -> ~40 ms.
 - Anisotropic texture filtering (below).
 - Depth offsets for coplanar surfaces (`set_depth_offset`, below).
 """

@@ -142,9 +142,9 @@ class OmniRenderer:
         cache_body_faces: bool = True,
     ) -> None:
         """cache_body_faces: render the faces that only show the car body (which moves
-        with the camera) once, at the first frame rendered, and reuse them. Those
-        pixels lie outside the valid field of view; a resumed render may differ there
-        (vibration, shading) from an uninterrupted one, never in the valid view."""
+        with the camera) once and reuse them: at the first pose rendered, or at the pose
+        given to `keep_body_faces` first (a drive gives its frame 0's, so that a render
+        resumed at any frame writes the same body pixels as an uninterrupted one)."""
         self.camera = camera
         self.cache_body_faces = cache_body_faces
         self._face_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
@@ -172,6 +172,29 @@ class OmniRenderer:
             T[:3, 3] = T_world_cam[:3, 3]
             poses.append(T)
         return poses
+
+    def keep_body_faces(
+        self, scene: pyrender.Scene, T_world_cam: np.ndarray, flat: bool = False
+    ) -> None:
+        """Render the faces that only show the car body at T_world_cam and keep them for
+        every later `render_atlas` of ``scene`` (with the same ``flat``); faces already
+        kept stay as they are, and nothing happens without ``cache_body_faces``."""
+        if not self.cache_body_faces:
+            return
+        todo = [n for n in self.lookup.body_only if (id(scene), flat, n) not in self._face_cache]
+        if not todo:
+            return
+        node = scene.add(self._gl_camera, pose=np.eye(4))
+        flags = pyrender.RenderFlags.FLAT if flat else pyrender.RenderFlags.NONE
+        try:
+            for name, pose in zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True):
+                if name in todo:
+                    scene.set_pose(node, pose)
+                    self._face_cache[(id(scene), flat, name)] = self._renderer.render(
+                        scene, flags=flags
+                    )
+        finally:
+            scene.remove_node(node)
 
     def render_atlas(
         self,

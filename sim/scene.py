@@ -2,8 +2,9 @@
 
 World frame (docs/CONVENTIONS.md): right-handed, z up, metres, the road surface
 at z = 0. Everything here is plain trimesh; the renderer (pyrender) turns each
-returned mesh into one node. pyrender's cost is per node, not per pixel
-(NOTES.md), so this module returns FEW merged meshes:
+returned mesh into one node. pyrender's cost is per node, not per pixel (the
+per-mesh-node cost of OSMesa rendering, docs/INSTALL.md), so this module returns FEW
+merged meshes:
 
 - :func:`build_static_scene` -> up to 4 meshes, each named in ``mesh.metadata["name"]``:
   ``"road"`` (textured asphalt, shoulders included), ``"markings"`` (vertex

@@ -302,6 +302,13 @@ ESTIMATORS: dict[str, type[EgoMotionEstimator]] = {
 _CONFIGS: dict[str, type] = {"can-only": CanOnlyConfig, "features": FeatureConfig}
 
 
+def check_estimator(name: str) -> str:
+    """``name`` if it is a known estimator; ValueError naming it and the known ones."""
+    if name not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")
+    return name
+
+
 def make_estimator(
     name: str, camera: CameraModel, mount: CameraMount, **cfg: Any
 ) -> EgoMotionEstimator:
@@ -311,8 +318,7 @@ def make_estimator(
     ``filter={...}`` for `FilterConfig`); "direct" starts from the camera kind's
     defaults (`estimator.egomotion.direct_config.default_config`).
     """
-    if name not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")
+    check_estimator(name)
     if name == "direct":
         return DirectEstimator(camera, mount, default_config(camera.kind, **cfg))
     return ESTIMATORS[name](camera, mount, make_config(_CONFIGS[name], cfg, name))

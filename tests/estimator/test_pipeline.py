@@ -36,3 +36,41 @@ def test_estimate_frames_runs_the_blas_on_one_thread(monkeypatch) -> None:
     can = CanTrack(poses.t_s, np.full(3, 21.6))
     run = estimate_frames(frames, poses.t_s, can, camera, mount, "direct")
     assert len(run.records) == 3 and seen == [1, 1, 1]
+
+
+def test_estimate_frames_takes_lazy_times_for_any_number_of_frames(monkeypatch) -> None:
+    """Times from `frame_times` (no end) serve a recording of any length, here over 100000
+    frames; the progress bar's total is the frame count given."""
+    from types import SimpleNamespace
+
+    import estimator.pipeline as pipeline
+    from estimator.recording import frame_times
+
+    class Stub:
+        def step(self, image, t_s, can_speed_mps, road_mask=None):
+            return SimpleNamespace(t_s=t_s)
+
+    monkeypatch.setattr(baselines, "make_estimator", lambda *a, **k: Stub())
+    totals = []
+    real_track = pipeline.track
+
+    def spy(items, total, label, enabled=True):
+        totals.append(total)
+        return real_track(items, total, label, False)
+
+    monkeypatch.setattr(pipeline, "track", spy)
+    camera, mount = load_camera("omni-far")
+    n = 100_001
+    image = np.zeros((2, 2), np.uint8)
+    can = CanTrack(np.array([0.0]), np.array([20.0]))
+    run = estimate_frames(
+        (image for _ in range(n)), frame_times(15.0), can, camera, mount, "stub", n_frames=n
+    )
+    assert len(run.records) == n and totals == [n]
+    assert run.records[-1].t_s == (n - 1) / 15.0
+    try:
+        estimate_frames([image] * 3, np.arange(2) / 15.0, can, camera, mount, "stub")
+    except ValueError as e:
+        assert "more frames than timestamps (2)" in str(e)
+    else:
+        raise AssertionError("a frame without a time was taken")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from estimator.camera.files import load_camera
 from scenarios.cli import parse_settings
@@ -168,3 +169,73 @@ def test_estimate_takes_estimator_settings(tmp_path):
     proc = estimate("bad2", "road_appearance=maybe")
     assert proc.returncode == 2 and "direct.road_appearance takes a bool" in proc.stderr
     assert not (tmp_path / "bad1").exists() and not (tmp_path / "bad2").exists()
+
+
+def test_estimate_counts_the_frames_of_a_folder_and_a_video(tmp_path, monkeypatch):
+    """--fps: the progress bar's total is the recording's frame count (a folder's image
+    files, a video's stated count) and every frame gets its time k / fps."""
+    from typer.testing import CliRunner
+
+    import estimator.pipeline as pipeline
+    from scenarios.cli import app
+
+    totals = []
+    real_track = pipeline.track
+
+    def spy(items, total, label, enabled=True):
+        totals.append(total)
+        return real_track(items, total, label, False)
+
+    monkeypatch.setattr(pipeline, "track", spy)
+    cam, _ = load_camera("omni-far")
+    rng = np.random.default_rng(5)
+    images = [rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8) for _ in range(4)]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, img in enumerate(images[:3]):
+        cv2.imwrite(str(folder / f"{k:06d}.png"), img)
+    video = tmp_path / "drive.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (cam.width, cam.height))
+    for img in images:
+        w.write(img)
+    w.release()
+    can = tmp_path / "can.csv"
+    can.write_text("t_s,speed_mps\n0,10\n1,10\n")
+    for source, n in ((folder, 3), (video, 4)):
+        out = tmp_path / f"out-{source.name}"
+        args = ["estimate", str(source), "--camera", "omni-far", "--can", str(can)]
+        args += ["--fps", "15", "--estimator", "can-only", "--out", str(out)]
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        assert totals[-1] == n
+        with open(out / "egomotion.csv", newline="") as fh:
+            t = [float(r["t_s"]) for r in csv.DictReader(fh)]
+        np.testing.assert_allclose(t, np.arange(n) / 15.0, atol=1e-6)
+
+
+def test_a_bad_estimator_is_refused_before_any_work(tmp_path):
+    """`run` and `estimate` name a bad --estimator and the known ones before rendering or
+    reading anything (here: no drive folder; a missing CAN file not reached)."""
+    out = tmp_path / "o"
+    proc = omnibench(
+        "run", "highway-omni-near", "--estimator", "nope", "--frames", "2", "--out", str(out)
+    )
+    assert proc.returncode == 2
+    assert "'nope'" in proc.stderr and "direct, can-only, features" in proc.stderr
+    assert not out.exists(), "rendered before checking the estimator"
+    proc = omnibench("run", "highway-omni-near", "--frames", "0", "--out", str(out))
+    assert proc.returncode == 2 and "--frames 0" in proc.stderr and not out.exists()
+    proc = omnibench(
+        "estimate", str(tmp_path), "--camera", "omni-near", "--can", str(tmp_path / "none.csv"),
+        "--fps", "15", "--estimator", "nope", "--out", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert "'nope'" in proc.stderr and "direct, can-only, features" in proc.stderr
+    assert "none.csv" not in proc.stderr and not out.exists()
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    sc = load_scenario("highway-omni-near")
+    with pytest.raises(ValueError, match="'nope'; choose one of direct, can-only, features"):
+        run_scenario(sc, out, estimator="nope", progress=False, max_frames=2)
+    assert not out.exists(), "rendered before checking the estimator"

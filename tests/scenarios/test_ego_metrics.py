@@ -108,3 +108,44 @@ def test_angle_rmse_is_the_roll_and_pitch_in_car_axes(preset):
     assert m["pitch_rmse_deg"] == pytest.approx(0.0, abs=1e-12)
     assert m["angle_yaw_rmse_deg"] == pytest.approx(0.3)
     assert m["prior_angle_rmse_deg"] == pytest.approx(0.2)  # CAN-only: A at the mount
+
+
+def test_nonfinite_estimates_are_counted_apart_from_the_compared_frames():
+    """A frame whose estimate is NaN or infinite is in no RMSE and not in frames_compared:
+    frames_nonfinite counts it, and every RMSE (the prior's too) is over the others."""
+    from scenarios.metrics import ego_metrics
+
+    n = 10
+    speed_gt = np.full(n, 20.0)
+    speed_est = speed_gt + np.r_[0.1, -0.1, 0.2, -0.2, 0.1, -0.1, 0.3, -0.3, 0.0, 0.0]
+    yaw_gt = np.zeros(n)
+    yaw_est = np.full(n, 0.5)
+    A_gt = np.zeros((n, 3))
+    A_est = np.full((n, 3), 0.1)
+    speed_est[2] = np.nan  # the speed alone is NaN
+    yaw_est[5] = np.inf  # the yaw rate alone is infinite
+    A_est[7, 1] = np.nan  # A's pitch alone is NaN
+    prior = np.full(n, 21.0)
+    prior[2] = prior[5] = prior[7] = 1000.0  # only on the frames left out
+    series = {
+        "t_s": np.arange(n) / 15.0,
+        "speed_est": speed_est,
+        "speed_gt": speed_gt,
+        "speed_prior": prior,
+        "yaw_est": yaw_est,
+        "yaw_gt": yaw_gt,
+        "yaw_prior": np.zeros(n),
+        "A_est": A_est,
+        "A_gt": A_gt,
+    }
+    m = ego_metrics(series)
+    kept = np.setdiff1d(np.arange(n), [2, 5, 7])
+    assert m["frames_compared"] == len(kept) == 7
+    assert m["frames_nonfinite"] == 3
+    rmse = float(np.sqrt(np.mean((speed_est[kept] - 20.0) ** 2)))
+    assert m["speed_rmse_mps"] == pytest.approx(rmse)
+    assert m["yaw_rate_rmse_dps"] == pytest.approx(0.5)
+    assert m["angle_rmse_deg"] == pytest.approx(0.1)
+    assert m["prior_speed_rmse_mps"] == pytest.approx(1.0)
+    every = ego_metrics({k: v[kept] for k, v in series.items()})
+    assert every["frames_nonfinite"] == 0 and every["frames_compared"] == 7

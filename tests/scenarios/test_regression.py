@@ -9,6 +9,7 @@ import pytest
 
 from scenarios.regression import (
     BASELINE_METRICS,
+    BASELINES_DIR,
     BaselineError,
     Tolerance,
     check_baseline,
@@ -139,6 +140,39 @@ def test_update_then_check_a_baseline(tmp_path):
     assert "job j1: detection.recall 0.8 -> 0.7" in changes
     assert not any("timing" in c for c in changes)
     assert check_baseline(run2, TOL, bdir).ok
+
+
+def test_baseline_guards_the_yaw_rate_and_a_rmse_with_their_own_floors(tmp_path):
+    """`omnibench baseline check` watches the yaw-rate RMSE [deg/s] and A's RMSE [deg], each
+    with an absolute floor in its unit; the committed smoke baseline holds both for every
+    job."""
+    assert {"ego.yaw_rate_rmse_dps", "ego.angle_rmse_deg"} <= set(BASELINE_METRICS)
+    loose = Tolerance(rel=0.05, abs_=0.05)  # the smoke test's general floor
+    for metric, floor in (("ego.yaw_rate_rmse_dps", 0.05), ("ego.angle_rmse_deg", 0.01)):
+        assert loose.abs_for(metric) == floor == TOL.abs_for(metric)
+        assert not is_regression(metric, 0.0, 0.9 * floor, loose)[0]
+        assert is_regression(metric, 0.0, 1.1 * floor, loose)[0]
+    # A's RMSE 0.24 -> 0.28 deg (+17 %) regresses, though under the general floor of 0.05
+    assert is_regression("ego.angle_rmse_deg", 0.24, 0.28, loose)[0]
+    assert "ego.angle_rmse_deg 0.01" in TOL.describe()
+    with pytest.raises(ValueError, match="ego.angle_rmse_deg"):
+        Tolerance(per_metric={"ego.angle_rmse_deg": -1.0})
+
+    bdir = tmp_path / "baselines"
+    good = {**GOOD, "ego.yaw_rate_rmse_dps": 0.7, "ego.angle_rmse_deg": 0.2}
+    update_baseline(write_run(tmp_path / "r1", "r1", {"j1": good}), bdir)
+    worse = {**good, "ego.yaw_rate_rmse_dps": 0.9, "ego.angle_rmse_deg": 0.25}
+    cmp = check_baseline(write_run(tmp_path / "r2", "r2", {"j1": worse}), TOL, bdir)
+    assert sorted(d.metric for d in cmp.regressions) == [
+        "ego.angle_rmse_deg",
+        "ego.yaw_rate_rmse_dps",
+    ]
+
+    smoke = json.loads((BASELINES_DIR / "smoke.json").read_text())["jobs"]
+    for jid, j in smoke.items():
+        for key in BASELINE_METRICS:
+            if key.startswith("ego."):
+                assert math.isfinite(j["metrics"][key]), (jid, key)
 
 
 def test_check_baseline_errors(tmp_path):

@@ -214,7 +214,7 @@ def test_hyperbolic_equals_mei_unified_model(name):
     w = cam.pixel_grid()[cam.valid_mask()][::13]
     P = cam.unproject(w) * 5.0
     q1, q2, q3 = cam.q1, cam.q2, cam.q3
-    xi, r = q3 / q2, q1 / q2  # NOTES.md: xi = q3/q2, gamma = f q1/q2
+    xi, r = q3 / q2, q1 / q2  # eq. 6 as Mei's model: xi = q3/q2, gamma = f q1/q2
     ref = mei_project(P, xi, cam.fu * r, cam.fv * r, cam.skew * r, cam.u0, cam.v0)
     np.testing.assert_allclose(cam.project(P), ref, atol=1e-9)
 
