@@ -14,15 +14,16 @@ returns the median and the 90th percentile of the per-frame wall-clock times
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-from threadpoolctl import threadpool_info, threadpool_limits
 
 from estimator.camera.files import load_camera
+from estimator.egomotion.bench import time_steps
 from estimator.fileio import read_png
 from estimator.surround.analyzer import SurroundAnalyzer
 from scenarios.config import Scenario
@@ -120,35 +121,17 @@ def bench_estimate(
     images = [read_png(drive / "frames" / f"{k:06d}.png") for k in range(total)]
     est = make_estimator("direct", cam, mount)
     R = mount.R_car_cam
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    times, cpu, errors = [], [], []
-    try:
-        with threadpool_limits(limits=1):
-            blas_threads = max((p["num_threads"] for p in threadpool_info()), default=1)
-            for k, img in enumerate(images):
-                t = float(t_s[k])
-                t0, c0 = time.perf_counter(), time.process_time()
-                rec = est.step(img, t, can.at(t))
-                dt, dc = time.perf_counter() - t0, time.process_time() - c0
-                if k > warmup:
-                    times.append(dt)
-                    cpu.append(dc)
-                    truth = float((R @ np.asarray(gt[k]["motion_from_prev"]["V_mps"]))[0])
-                    errors.append(abs(rec.speed_mps / truth - 1.0))
-    finally:
-        cv2.setNumThreads(threads)
-    ms = 1000.0 * np.asarray(times)
+    truth = [math.nan] + [
+        float((R @ np.asarray(g["motion_from_prev"]["V_mps"]))[0]) for g in gt[1:total]
+    ]
+    res = time_steps(est, images, t_s, [can.at(float(t)) for t in t_s], truth, warmup=warmup)
     return {
         "bench": "estimate",
-        "ms_per_frame": float(np.median(ms)),
-        "p90_ms_per_frame": float(np.percentile(ms, 90)),
-        "cpu_ms_per_frame": float(np.median(1000.0 * np.asarray(cpu))),
-        "frames": len(times),
+        **{k: res[k] for k in ("ms_per_frame", "p90_ms_per_frame", "cpu_ms_per_frame", "frames")},
         "scenario": sc.name,
         "camera": sc.camera if isinstance(sc.camera, str) else "inline",
         "width": cam.width,
         "height": cam.height,
-        "speed_error_pct": 100.0 * float(np.median(errors)),
-        "blas_threads": blas_threads,
+        "speed_error_pct": res["speed_error_pct"],
+        "blas_threads": res["blas_threads"],
     }

@@ -12,6 +12,7 @@ core, the CPU time does not (it is what one dedicated core would take).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -20,19 +21,60 @@ from threadpoolctl import threadpool_info, threadpool_limits
 from estimator.camera.files import load_camera
 from estimator.egomotion.direct import DirectEstimator
 from estimator.egomotion.direct_config import default_config
+from estimator.egomotion.ego_estimator import EgoMotionEstimator
 from estimator.synthetic import RoadTexture, drive_poses, pixel_angle_rad, render_road, to_uint8
+
+
+def time_steps(
+    est: EgoMotionEstimator,
+    images: Sequence[np.ndarray],
+    t_s: Sequence[float],
+    can_mps: Sequence[float],
+    true_speed_mps: Sequence[float],
+    warmup: int,
+) -> dict:
+    """Time ``est.step`` on each frame, OpenCV and the BLAS on one thread.
+
+    images, t_s [s], can_mps [m/s], true_speed_mps [m/s]: one per frame (N,); the first
+    ``warmup + 1`` steps are not timed (frame 0 has no pair). Returns ms_per_frame (median
+    wall clock), p90_ms_per_frame, cpu_ms_per_frame (median process CPU time), frames,
+    speed_error_pct (median |relative error| of the forward speed), blas_threads (the most
+    threads of a pool while timing: 1) and the last record's points and iterations.
+    """
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    times, cpu, errors = [], [], []
+    try:
+        with threadpool_limits(limits=1):
+            blas_threads = max((p["num_threads"] for p in threadpool_info()), default=1)
+            for k, img in enumerate(images):
+                t0, c0 = time.perf_counter(), time.process_time()
+                rec = est.step(img, float(t_s[k]), float(can_mps[k]))
+                dt, dc = time.perf_counter() - t0, time.process_time() - c0
+                if k > warmup:
+                    times.append(dt)
+                    cpu.append(dc)
+                    errors.append(abs(rec.speed_mps / true_speed_mps[k] - 1.0))
+    finally:
+        cv2.setNumThreads(threads)
+    ms = 1000.0 * np.asarray(times)
+    return {
+        "ms_per_frame": float(np.median(ms)),
+        "p90_ms_per_frame": float(np.percentile(ms, 90)),
+        "cpu_ms_per_frame": float(np.median(1000.0 * np.asarray(cpu))),
+        "frames": len(times),
+        "speed_error_pct": 100.0 * float(np.median(errors)),
+        "blas_threads": blas_threads,
+        "points": getattr(rec, "n_points", 0),
+        "iterations": getattr(rec, "iterations", []),
+    }
 
 
 def bench_direct(
     camera_name: str = "omni-near", n_frames: int = 30, warmup: int = 3, **config
 ) -> dict:
-    """Median time of `DirectEstimator.step` over ``n_frames`` frames (after ``warmup``).
-
-    Returns ms_per_frame (median wall clock), p90_ms_per_frame, cpu_ms_per_frame (median process
-    CPU time), frames, width, height, points and
-    iterations of the last frame, the median |speed error| [%] against the
-    synthetic truth (25 m/s; the CAN speed given is 8 % high) and blas_threads (the
-    most threads of a thread pool while timing: 1).
+    """`time_steps` of `DirectEstimator` over ``n_frames`` synthetic frames (after
+    ``warmup``): a car at 25 m/s whose CAN speed is 8 % high. Adds camera, width, height.
     """
     camera, mount = load_camera(camera_name)
     fps, speed = 15.0, 25.0
@@ -44,33 +86,5 @@ def bench_direct(
         to_uint8(render_road(camera, T, tex, pixel_angle=angle)) for T in poses.T_world_actual
     ]
     est = DirectEstimator(camera, mount, default_config(camera.kind, **config))
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    times, cpu, errors = [], [], []
-    try:
-        with threadpool_limits(limits=1):
-            blas_threads = max((p["num_threads"] for p in threadpool_info()), default=1)
-            for k, img in enumerate(frames):
-                t0, c0 = time.perf_counter(), time.process_time()
-                rec = est.step(img, poses.t_s[k], 1.08 * speed)
-                dt, dc = time.perf_counter() - t0, time.process_time() - c0
-                if k > warmup:
-                    times.append(dt)
-                    cpu.append(dc)
-                    errors.append(abs(rec.speed_mps / speed - 1.0))
-    finally:
-        cv2.setNumThreads(threads)
-    ms = 1000.0 * np.asarray(times)
-    return {
-        "ms_per_frame": float(np.median(ms)),
-        "p90_ms_per_frame": float(np.percentile(ms, 90)),
-        "cpu_ms_per_frame": float(np.median(1000.0 * np.asarray(cpu))),
-        "frames": len(times),
-        "camera": camera_name,
-        "width": camera.width,
-        "height": camera.height,
-        "points": rec.n_points,
-        "iterations": rec.iterations,
-        "speed_error_pct": 100.0 * float(np.median(errors)),
-        "blas_threads": blas_threads,
-    }
+    res = time_steps(est, frames, poses.t_s, [1.08 * speed] * total, [speed] * total, warmup=warmup)
+    return {**res, "camera": camera_name, "width": camera.width, "height": camera.height}
