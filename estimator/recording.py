@@ -10,6 +10,7 @@ CAN message): the estimator then runs on its own prediction and flags it.
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -168,13 +169,10 @@ def count_frames(source: str | Path) -> int | None:
 
 def frame_times(fps: float) -> Iterator[float]:
     """Times [s] of frames 0, 1, 2, ... at ``fps`` [Hz] (> 0), without end: as many as the
-    recording has frames, whatever its length."""
+    recording has frames, whatever its length. RecordingError at once for a bad rate."""
     if not (math.isfinite(fps) and fps > 0):
         raise RecordingError(f"frame rate must be finite and > 0, got {fps}")
-    k = 0
-    while True:
-        yield k / fps
-        k += 1
+    return (k / fps for k in itertools.count())
 
 
 def video_fps(source: str | Path) -> float | None:

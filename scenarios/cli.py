@@ -223,8 +223,7 @@ def estimate(
 
     try:
         check_estimator(estimator)  # the cheap inputs first
-        if fps is not None and not (math.isfinite(fps) and fps > 0):
-            raise RecordingError(f"--fps {fps}: must be finite and > 0")
+        given_times = frame_times(fps) if fps is not None else None
         config = parse_settings(settings)
         cam, mount = load_camera(camera)
         can_track = read_can_csv(can)
@@ -232,10 +231,11 @@ def estimate(
         if timestamps is not None:
             times = read_timestamps_csv(timestamps)
         else:
-            rate = fps or video_fps(video)
-            if rate is None:
+            rate = video_fps(video) if given_times is None else None
+            if given_times is None and rate is None:
                 raise RecordingError(f"{video}: no frame rate known: give --fps or --timestamps")
-            times = frame_times(rate)  # one per frame, however many the recording has
+            # one per frame, however many the recording has
+            times = given_times if given_times is not None else frame_times(rate)
         run = estimate_frames(
             iter_frames(video),
             times,

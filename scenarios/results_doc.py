@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from scenarios.history import git_commit
+from scenarios.regression import BaselineError, read_summary
+from scenarios.suite import ROLE_MEANING
 
 # (flattened metrics.json key, column head, format)
 EGO_COLUMNS = (
@@ -34,12 +36,6 @@ DETECTION_COLUMNS = (
     ("tracking.hota", "HOTA", "{:.2f}"),
     ("localization.median_error_m", "median position error [m]", "{:.2f}"),
 )
-ROLE_NOTE = {
-    "tuning": "tuning suite: settings were chosen on these drives (not held out)",
-    "check": "check suite: rendered and measured only after the settings were chosen",
-    "regression": "regression suite: guards the figures against changes",
-    None: "role not declared",
-}
 
 
 class ResultsError(ValueError):
@@ -62,13 +58,11 @@ def _metrics(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def load_summary(run_dir: Path) -> dict[str, Any]:
-    p = Path(run_dir) / "summary.json"
-    if not p.is_file():
-        raise ResultsError(f"{run_dir}: no summary.json (not a finished `omnibench suite` folder)")
+    """`scenarios.regression.read_summary`, its error as a ResultsError."""
     try:
-        return json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ResultsError(f"{p}: not valid JSON ({e})") from None
+        return read_summary(run_dir)
+    except BaselineError as e:
+        raise ResultsError(str(e)) from None
 
 
 def load_bench(path: Path) -> dict[str, Any]:
@@ -99,7 +93,7 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
     lines = [
         f"## Suite `{summary.get('suite')}`",
         "",
-        f"*{ROLE_NOTE.get(summary.get('role'), ROLE_NOTE[None])}.* "
+        f"*{ROLE_MEANING.get(summary.get('role'), 'role not declared')}.* "
         f"{summary.get('description', '')}",
         "",
         f"Run `{summary.get('run_id')}`, commit `{summary.get('commit')}`{dirty}, finished "

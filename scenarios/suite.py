@@ -58,6 +58,7 @@ from scenarios.config import (
     resolve_scenario_path,
     scenario_from_dict,
 )
+from sim.scenario import format_errors
 
 SUITES_DIR = Path(__file__).parent / "suites"
 REPO_DIR = Path(__file__).resolve().parents[1]
@@ -112,6 +113,14 @@ KNOWN_METRICS = (
 )
 
 
+# what a suite's role says of its figures (docs/SUITES.md); shown in reports and RESULTS.md
+ROLE_MEANING = {
+    "tuning": "tuning suite: settings were chosen on these drives, so its figures are not held out",
+    "check": "check suite: rendered and measured only after the settings were chosen",
+    "regression": "regression suite: its figures guard against changes; they are not held out",
+}
+
+
 class SuiteError(ValueError):
     """A suite file that cannot be used; the message names file, key and value."""
 
@@ -135,8 +144,7 @@ class Threshold(_Strict):
 class SuiteSpec(_Strict):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9._-]+$")
     description: str = ""
-    # tuning: settings were chosen on it; check: measured only after the choice; regression
-    role: Literal["tuning", "check", "regression"] | None = None
+    role: Literal["tuning", "check", "regression"] | None = None  # keys of ROLE_MEANING
     scenarios: list[str] = Field(min_length=1)
     cameras: list[str | dict[str, Any]] | None = Field(None, min_length=1)
     estimators: list[str] = Field(default_factory=lambda: ["direct"], min_length=1)
@@ -149,11 +157,10 @@ class SuiteSpec(_Strict):
     @field_validator("estimators")
     @classmethod
     def _estimators(cls, v: list[str]) -> list[str]:
-        from estimator.egomotion.baselines import ESTIMATORS
+        from estimator.egomotion.baselines import check_estimator
 
         for e in v:
-            if e not in ESTIMATORS:
-                raise ValueError(f"unknown estimator {e!r}; choose from {list(ESTIMATORS)}")
+            check_estimator(e)
         if len(set(v)) != len(v):
             raise ValueError(f"estimators listed twice: {v}")
         return v
@@ -211,15 +218,6 @@ def check_override_key(key: str) -> None:
             raise ValueError(f"override {key!r}: {'.'.join(parts[: i + 1])} is not a section")
         return
     raise ValueError(f"override {key!r}: names a section, not a value")
-
-
-def _format_errors(err: ValidationError, where: str) -> str:
-    lines = []
-    for e in err.errors():
-        key = ".".join(str(p) for p in e["loc"]) or "<root>"
-        msg = e["msg"].removeprefix("Value error, ")
-        lines.append(f"{where}: key '{key}': {msg} (got {e.get('input')!r})")
-    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------- the jobs
@@ -430,7 +428,7 @@ def suite_from_dict(
     try:
         spec = SuiteSpec.model_validate(data)
     except ValidationError as e:
-        raise SuiteError(_format_errors(e, where)) from None
+        raise SuiteError(format_errors(e, where)) from None
     suite = Suite(spec, path)
     suite.jobs = expand(spec, base_dir, where)
     return suite

@@ -34,16 +34,10 @@ from typing import Any
 import numpy as np
 
 from estimator.fileio import atomic_write, write_json, write_text
-from scenarios.suite import Job, Suite, Threshold
+from scenarios.suite import ROLE_MEANING, Job, Suite, Threshold
 
 RANGE_STEP_M = 5.0  # [m] recall-by-range bin width
 BEARING_EDGES_DEG = tuple(range(-180, 181, 30))  # [deg]
-# what a suite's role (docs/SUITES.md) says of its figures
-ROLE_TEXT = {
-    "tuning": "A tuning suite: settings were chosen on these drives; its figures are not held out.",
-    "check": "A check suite: rendered and measured only after the settings were chosen.",
-    "regression": "A regression suite: its figures guard against changes, not held out.",
-}
 
 # columns of the metrics table: (flat key, header)
 TABLE_METRICS = (
@@ -532,7 +526,7 @@ def write_report(
     parts = [
         f"<h1>omnibench suite: {html.escape(suite.name)}</h1>",
         f"<p>{html.escape(suite.spec.description)}</p>" if suite.spec.description else "",
-        f"<p><b>{ROLE_TEXT[suite.spec.role]}</b></p>" if suite.spec.role else "",
+        f"<p><b>A {ROLE_MEANING[suite.spec.role]}.</b></p>" if suite.spec.role else "",
         f"<p>run <code>{_fmt(run.get('run_id'))}</code>, commit <code>{_fmt(run.get('commit'))}"
         f"</code>, finished {_fmt(run.get('finished_at'))}; {len(outcomes)} jobs: "
         f"<b>{n_ok}</b> ok, <b>{n_err}</b> errors, <b>{n_pass}</b> passed their thresholds</p>",

@@ -85,11 +85,13 @@ class Scenario(_Strict):
         return self.model_dump(mode="json")
 
 
-def _format_errors(err: ValidationError, where: str) -> str:
+def format_errors(err: ValidationError, where: str) -> str:
+    """One line per pydantic error: ``where``, the dotted key, the message and the value."""
     lines = []
     for e in err.errors():
         key = ".".join(str(p) for p in e["loc"]) or "<root>"
-        lines.append(f"{where}: key '{key}': {e['msg']} (got {e.get('input')!r})")
+        msg = e["msg"].removeprefix("Value error, ")
+        lines.append(f"{where}: key '{key}': {msg} (got {e.get('input')!r})")
     return "\n".join(lines)
 
 
@@ -99,7 +101,7 @@ def scenario_from_dict(data: Any, where: str = "<scenario>") -> Scenario:
     try:
         sc = Scenario.model_validate(data)
     except ValidationError as e:
-        raise ScenarioError(_format_errors(e, where)) from None
+        raise ScenarioError(format_errors(e, where)) from None
     _check_env(sc.env, where)
     _check_camera(sc.camera, where)
     return sc

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from threadpoolctl import threadpool_info
 
 import estimator.egomotion.baselines as baselines
@@ -74,3 +75,20 @@ def test_estimate_frames_takes_lazy_times_for_any_number_of_frames(monkeypatch) 
         assert "more frames than timestamps (2)" in str(e)
     else:
         raise AssertionError("a frame without a time was taken")
+
+
+@pytest.mark.parametrize("fps", [0.0, -15.0, float("nan"), float("inf")])
+def test_frame_times_refuses_a_bad_rate_when_called(fps):
+    """The rate is checked before any frame is read, not at the first frame."""
+    from estimator.recording import RecordingError, frame_times
+
+    with pytest.raises(RecordingError, match="frame rate must be finite and > 0"):
+        frame_times(fps)
+
+
+def test_frame_times_are_k_over_fps():
+    from itertools import islice
+
+    from estimator.recording import frame_times
+
+    assert list(islice(frame_times(15.0), 4)) == [0.0, 1 / 15, 2 / 15, 3 / 15]
