@@ -45,6 +45,9 @@ def render(
     ),
     frames: int | None = typer.Option(None, help="render only the first N frames"),
     face_px: int | None = typer.Option(None, help="cube-map face size [px]"),
+    renderer: str = typer.Option(
+        "plane", help="plane (road drawn per pixel, the default) or cube (all by cube faces)"
+    ),
 ) -> None:
     """Render a scenario: frames, ids, range, groundtruth.jsonl, camera.yaml, drive.mp4."""
     from scenarios.config import ScenarioError, load_scenario
@@ -52,7 +55,7 @@ def render(
 
     try:
         sc = load_scenario(scenario)
-        res = render_drive(sc, out, face_px=face_px, max_frames=frames)
+        res = render_drive(sc, out, face_px=face_px, max_frames=frames, renderer=renderer)
     except (ScenarioError, DriveError, ValueError) as e:
         _fail(str(e))
     console.print(
@@ -97,17 +100,50 @@ def bench_render(
     frames: int = typer.Option(20, help="frames to time after warm-up"),
     camera: str = typer.Option("omni-far", help="camera preset"),
     vehicles: int = typer.Option(30, help="vehicles on the highway"),
+    renderer: list[str] = typer.Option(
+        ["plane", "cube"], help="renderers to time, in one run (plane, cube)"
+    ),
+    face_px: int | None = typer.Option(None, help="cube-face size [px] (default per renderer)"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
-    """Frames/s of the full omni frame production (render + ray map + sensor) of a highway."""
+    """Frames/s of the full omni frame production (render, ray map, ids, range, every
+    sensor effect) of a highway, per renderer, with a breakdown by stage."""
     from sim.bench import bench_render as run
 
-    res = run(n_frames=frames, camera=camera, vehicles=vehicles)
-    console.print(
-        f"render: {res['frames_per_s']:.2f} frames/s "
-        f"({res['ms_per_frame']:.0f} ms/frame median over {res['frames']} frames, "
-        f"{res['width']}x{res['height']}, {res['vehicles']} vehicles)"
-    )
+    results = {}
+    for name in renderer:
+        res = run(n_frames=frames, camera=camera, vehicles=vehicles, renderer=name, face_px=face_px)
+        results[name] = res
+        stages = ", ".join(f"{k} {v:.0f}" for k, v in res["stages_ms"].items())
+        console.print(
+            f"render ({name}, {res['face_px']} px faces): {res['frames_per_s']:.2f} frames/s "
+            f"({res['ms_per_frame']:.0f} ms/frame median, p90 {res['ms_p90']:.0f}, over "
+            f"{res['frames']} frames, {res['width']}x{res['height']}, {res['vehicles']} "
+            f"vehicles; ms: {stages})"
+        )
+    if as_json:
+        first = results[renderer[0]]
+        print(json.dumps({**first, "renderers": results}))
+
+
+@bench_app.command("fidelity")
+def bench_fidelity_cmd(
+    out: Path = typer.Option(Path("renders/bench/fidelity"), help="folder for the drives"),
+    camera: str = typer.Option("omni-far", help="camera preset"),
+    frames: int = typer.Option(40, help="frames per drive"),
+    as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
+) -> None:
+    """Motion fidelity of the renderers, without an estimator: road patches of consecutive
+    frames against the exact plane-induced motion (scenarios/motion_fidelity.py)."""
+    from scenarios.motion_fidelity import bench_fidelity
+
+    res = bench_fidelity(out, camera=camera, frames=frames)
+    for label, s in res.items():
+        console.print(
+            f"{label}: {s['patches']} patches, mean error along the motion "
+            f"{s['mean_along_motion_px']:+.4f} px, RMS {s['rms_px']:.4f} px, median "
+            f"{s['median_abs_px']:.4f} px (motion {s['mean_motion_px']:.1f} px/frame)"
+        )
     if as_json:
         print(json.dumps(res))
 

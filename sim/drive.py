@@ -11,7 +11,8 @@ Layout of ``out/``::
     timestamps.csv      frame times (frame, t_s)
     camera.yaml         the camera and its mount
     scenario.yaml       the resolved scenario
-    render.json         how the frames are rendered ({"face_px": ...}); a resume must match
+    render.json         how the frames are rendered ({"renderer": ..., "face_px": ...});
+                        a resume must match
     drive.mp4           the frames as a video
     manifest.json       written last: {"complete": true, ...}
 
@@ -42,20 +43,22 @@ from sim.camera_motion import (
     motion_between,
 )
 from sim.can import can_at, can_messages
-from sim.gl import pyrender, set_depth_offset
+from sim.frame_renderer import (
+    RENDERERS,
+    CubeFrameRenderer,
+    FrameImages,
+    PlaneFrameRenderer,
+    default_face_px,
+    imaged_mask,
+    object_face_px,
+)
 from sim.highway import EGO_REAR_AXLE_X_M, WorldFrame, simulate
-from sim.renderer import OmniRenderer, finest_pixel_angle_rad
 from sim.scenario import Scenario
 from sim.scene import (
-    DEPTH_OFFSET,
     build_static_scene,
-    decode_id_image,
     vehicle_corners_world,
-    vehicles_mesh,
 )
 from sim.sensor import SensorModel, apply_sensor, exposure_times, gain_sequence
-
-SKY_RGB = (0.62, 0.74, 0.90)
 
 
 class DriveError(RuntimeError):
@@ -74,91 +77,17 @@ class DriveResult:
     render_ms_per_frame: float
 
 
-# A camera pixel is a bilinear lookup into a cube face (`sim.renderer`). Where the face
-# samples the view more coarsely than the camera (at the face centre, its coarsest), the
-# image is an upsampling of the face, and its texture (filtered, aliased) on the face's
-# grid: a pattern fixed to the camera, which pulls the motion seen in the images towards
-# zero. Faces at least this many times finer than the camera's finest pixel keep the
-# camera's sampling in charge (and `sim.renderer.prefilter_sigma_px` low-passes them back
-# to the camera's pixel). Measured on racetrack-omni-near frames 24-60: 512 px faces
-# (0.8x) speed 1.85 % / yaw bias -0.78 deg/s, 1024 px (1.6x) 0.90 % / -0.63 deg/s.
-FACE_OVERSAMPLING = 1.5
-MAX_FACE_PX = 2048
-
-
-def default_face_px(camera: CameraModel) -> int:
-    """Cube-face size [px] (a power of two, 128..MAX_FACE_PX) whose texels at the face
-    centre are FACE_OVERSAMPLING times finer than the camera's finest pixels."""
-    finest_rad = finest_pixel_angle_rad(camera)
-    # face focal length (face_px - 3) / 2 [px per unit tan] (`CubeMapLookup.build`)
-    need = 2.0 * FACE_OVERSAMPLING / np.tan(finest_rad) + 3.0
-    return int(np.clip(2 ** np.ceil(np.log2(need)), 128, MAX_FACE_PX))
-
-
-def static_pyrender_mesh(mesh) -> pyrender.Mesh:
-    """pyrender mesh of a static scene mesh, drawn with the depth offset of its surface
-    (`sim.scene.DEPTH_OFFSET`: road, grass and markings share one plane)."""
-    m = pyrender.Mesh.from_trimesh(mesh, smooth=False)
-    return set_depth_offset(m, DEPTH_OFFSET.get(mesh.metadata.get("name"), 0.0))
-
-
-class WorldScenes:
-    """pyrender colour and id scenes of one drive: static world + per-frame vehicles."""
-
-    def __init__(self, static_meshes: list, id_static: list) -> None:
-        self.color = pyrender.Scene(bg_color=[*SKY_RGB, 1.0], ambient_light=[0.35, 0.35, 0.35])
-        self.ids = pyrender.Scene(bg_color=[0, 0, 0, 1.0], ambient_light=[1.0, 1.0, 1.0])
-        for m in static_meshes:
-            self.color.add(static_pyrender_mesh(m))
-        for m in id_static:
-            self.ids.add(pyrender.Mesh.from_trimesh(m, smooth=False))
-        sun = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
-        # sun from the south-west, 50 degrees up
-        d = np.array([0.45, 0.55, -0.7])
-        self.color.add(sun, pose=_look_pose(d))
-        self._veh_nodes: list = []
-
-    def set_vehicles(self, frame: WorldFrame) -> None:
-        for scene, node in self._veh_nodes:
-            scene.remove_node(node)
-        self._veh_nodes = []
-        vehicles = (frame.ego, *frame.others)
-        for scene, mode in ((self.color, "color"), (self.ids, "id")):
-            mesh = vehicles_mesh(vehicles, mode=mode)
-            if mesh is not None:
-                node = scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=False))
-                self._veh_nodes.append((scene, node))
-
-
-def _look_pose(direction: np.ndarray) -> np.ndarray:
-    """Pose whose -z axis points along ``direction`` (for a directional light)."""
-    z = -direction / np.linalg.norm(direction)
-    x = np.cross([0.0, 0.0, 1.0], z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    return T
-
-
-def _black_copy(mesh):
-    import trimesh
-
-    m = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
-    m.visual = trimesh.visual.ColorVisuals(
-        m, vertex_colors=np.tile([0, 0, 0, 255], (len(m.vertices), 1))
-    )
-    return m
-
-
-def static_scene_for(frames: list[WorldFrame], scenario: Scenario, bridge_road, seed: int):
+def static_scene_for(
+    frames: list[WorldFrame], scenario: Scenario, bridge_road, seed: int
+) -> tuple[list, tuple[float, float, float, float]]:
+    """The static scene's meshes (`sim.scene.build_static_scene`) within view_range_m of
+    the drive, and that area (xmin, xmax, ymin, ymax) [m]."""
     xs = np.array([f.ego.x_m for f in frames])
     ys = np.array([f.ego.y_m for f in frames])
     r = scenario.view_range_m
     area = (xs.min() - r, xs.max() + r, ys.min() - r, ys.max() + r)
     rng = np.random.default_rng([seed, 1])
-    meshes = build_static_scene(bridge_road, area, rng)
-    return meshes, [_black_copy(m) for m in meshes]
+    return build_static_scene(bridge_road, area, rng), area
 
 
 def _vehicle_record(v, T_world_cam_nominal: np.ndarray, visible_px: int) -> dict:
@@ -222,18 +151,6 @@ def scene_flow_px(
     return cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
 
 
-def imaged_mask(camera: CameraModel) -> np.ndarray:
-    """(H, W) bool: pixels that have an image: the valid field of view plus, for an
-    omni camera, the car-body disc in the centre (black beyond the mirror's rim)."""
-    mask = camera.valid_mask().copy()
-    body_deg = getattr(camera, "body_mask_deg", None)
-    if body_deg is not None:
-        rays = camera.pixel_rays()
-        with np.errstate(invalid="ignore"):
-            mask |= rays[..., 2] > np.cos(np.radians(body_deg))  # Z down: angle from nadir
-    return mask
-
-
 def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndarray]:
     """World displacement (3,) of every vehicle present in both frames [m]."""
     pos_b = {v.id: (v.x_m, v.y_m) for v in (f_b.ego, *f_b.others)}
@@ -244,20 +161,12 @@ def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndar
     }
 
 
-@dataclass
-class FrameImages:
-    """One rendered frame: image (H, W, 3) uint8, ids (H, W) int32 (-1 none), range_m (H, W)."""
-
-    image: np.ndarray
-    ids: np.ndarray
-    range_m: np.ndarray
-
-
 class DriveRenderer:
     """Everything needed to produce the frames of one simulated drive.
 
-    Holds the world frames, camera poses, CAN messages, the pyrender scenes and
-    the cube-map renderer; `produce(k)` renders frame k with sensor effects.
+    Holds the world frames, camera poses, CAN messages and the frame renderer
+    (`sim.frame_renderer`: ``renderer="plane"``, the default, or ``"cube"``);
+    `produce(k)` renders frame k with sensor effects.
     """
 
     def __init__(
@@ -268,7 +177,10 @@ class DriveRenderer:
         frames: list[WorldFrame],
         road,
         face_px: int | None = None,
+        renderer: str = "plane",
     ) -> None:
+        if renderer not in RENDERERS:
+            raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
         # the sensor's vignetting is the camera's photometric calibration: the camera file
         # of the drive records it, as a real camera's flat-field calibration would
         camera = camera.replace(vignetting=scenario.sensor.vignetting)
@@ -301,25 +213,33 @@ class DriveRenderer:
         )
         self.vignette = camera.vignetting_gain()
         self.road = road
-        self.face_px = face_px or default_face_px(camera)
-        self._renderer: OmniRenderer | None = None
+        self.renderer = renderer
+        if face_px is None:
+            plane = renderer == "plane"
+            face_px = object_face_px(camera) if plane else default_face_px(camera)
+        self.face_px = face_px
+        self._renderer: PlaneFrameRenderer | CubeFrameRenderer | None = None
 
-    def _open(self) -> OmniRenderer:
+    def settings(self) -> dict:
+        """How the frames are rendered (``render.json``)."""
+        return {"renderer": self.renderer, "face_px": self.face_px}
+
+    def _open(self) -> PlaneFrameRenderer | CubeFrameRenderer:
         if self._renderer is None:
-            self._renderer = OmniRenderer(self.camera, self.face_px)
-            static, id_static = static_scene_for(
+            static, area = static_scene_for(
                 self.frames, self.scenario, self.road, self.scenario.seed
             )
-            self._scenes = WorldScenes(static, id_static)
+            if self.renderer == "plane":
+                T_ref = self.poses[0].T_world_nominal
+                r = PlaneFrameRenderer(self.camera, static, area, T_ref, self.face_px)
+            else:
+                r = CubeFrameRenderer(self.camera, static, self.face_px)
             self._rays = self.camera.pixel_rays()
             self._mask = imaged_mask(self.camera)
-            # the faces that only show the car body are rendered once (OmniRenderer's
-            # cache_body_faces): always at frame 0, whatever frame this render starts at,
-            # so that a resumed render is byte-identical to an uninterrupted one
-            self._scenes.set_vehicles(self.frames[0])
-            T0 = self.poses[0].T_world_actual
-            self._renderer.keep_body_faces(self._scenes.color, T0)
-            self._renderer.keep_body_faces(self._scenes.ids, T0, flat=True)
+            # the car body is drawn once, always at frame 0, whatever frame this render
+            # starts at, so that a resumed render is byte-identical to an uninterrupted one
+            r.start(self.frames[0], self.poses[0].T_world_actual)
+            self._renderer = r
         return self._renderer
 
     def close(self) -> None:
@@ -348,24 +268,32 @@ class DriveRenderer:
         return pose, moved
 
     def produce(self, k: int) -> FrameImages:
-        renderer = self._open()
+        """Frame k with sensor effects; ``stage_seconds`` says where its time went."""
         pose = self.poses[k]
-        self._scenes.set_vehicles(self.frames[k])
-        atlas, _ = renderer.render_atlas(self._scenes.color, pose.T_world_actual)
-        # depth from the id scene: the same surfaces, without the colour scene's depth
-        # offsets (`sim.scene.DEPTH_OFFSET`), which push far grass back by metres
-        id_atlas, depth = renderer.render_atlas(
-            self._scenes.ids, pose.T_world_actual, flat=True, depth=True
-        )
-        image = renderer.remap_color(atlas)
-        ids = decode_id_image(renderer.remap_nearest(id_atlas))
-        range_m = renderer.range_image(depth)
+        renderer = self._open()
+        clock = renderer.clock
+        clock.start()
+        seen = renderer.render(self.frames[k], pose.T_world_actual)
+        image, ids, range_m = seen.image, seen.ids, seen.range_m
         blur = None
         if self.sensor.motion_blur and len(self.frames) > 1:
+            # the image motion at the first and the last sample time of the exposure; at the
+            # others it is scaled by time from the nearer one (each side of the frame's time
+            # moves towards its own neighbour frame): exact to first order, the second-order
+            # term over +-4 ms is below 0.001 px for a 160 px/s^2 change of the motion
+            taus = exposure_times(self.sensor.exposure_s)
+            ends = {
+                tau: scene_flow_px(
+                    self.camera, self._rays, range_m, ids, pose, *self._moved(k, tau)
+                )
+                for tau in (taus.min(), taus.max())
+            }
             blur = [
-                scene_flow_px(self.camera, self._rays, range_m, ids, pose, *self._moved(k, tau))
-                for tau in exposure_times(self.sensor.exposure_s)
+                np.float32(tau / (taus.max() if tau > 0 else taus.min()))
+                * ends[taus.max() if tau > 0 else taus.min()]
+                for tau in taus
             ]
+        clock.lap("motion")
         rng = np.random.default_rng([self.scenario.seed, 4, k])
         out = apply_sensor(
             image,
@@ -376,6 +304,8 @@ class DriveRenderer:
             blur_px=blur,
             mask=self._mask,
         )
+        clock.lap("sensor")
+        self.stage_seconds = dict(clock.seconds)
         return FrameImages(out, ids, range_m)
 
     def groundtruth(self, k: int, ids: np.ndarray) -> dict:
@@ -383,7 +313,10 @@ class DriveRenderer:
 
 
 def prepare_drive(
-    scenario: Scenario, max_frames: int | None = None, face_px: int | None = None
+    scenario: Scenario,
+    max_frames: int | None = None,
+    face_px: int | None = None,
+    renderer: str = "plane",
 ) -> DriveRenderer:
     """Simulate the scenario's traffic and set up its renderer."""
     camera, mount = resolve_camera(scenario.camera)
@@ -402,7 +335,7 @@ def prepare_drive(
     frames = frames[:n]
     if len(frames) < n:
         raise DriveError(f"simulation produced {len(frames)} frames, expected {n}")
-    return DriveRenderer(scenario, camera, mount, frames, road, face_px)
+    return DriveRenderer(scenario, camera, mount, frames, road, face_px, renderer)
 
 
 def render_drive(
@@ -412,6 +345,7 @@ def render_drive(
     progress: bool = True,
     face_px: int | None = None,
     max_frames: int | None = None,
+    renderer: str = "plane",
 ) -> DriveResult:
     """Simulate and render ``scenario`` into ``out_dir`` (resuming if possible)."""
     out_dir = Path(out_dir)
@@ -431,7 +365,9 @@ def render_drive(
     manifest = _read_manifest(out_dir)
     if manifest.get("complete") and manifest.get("frames") == n:  # nothing to simulate either
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
-    drive = prepare_drive(scenario, max_frames, face_px)
+    if renderer not in RENDERERS:  # before the simulation
+        raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
+    drive = prepare_drive(scenario, max_frames, face_px, renderer)
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)
     io.write_text(
@@ -444,7 +380,7 @@ def render_drive(
         "frame,t_s\n" + "".join(f"{k},{f.t_s:.6f}\n" for k, f in enumerate(drive.frames)),
     )
     todo = [k for k in range(n) if not (out_dir / "gt" / f"{frame_name(k)}.json").exists()]
-    _check_render_settings(out_dir, {"face_px": drive.face_px}, resuming=len(todo) < n)
+    _check_render_settings(out_dir, drive.settings(), resuming=len(todo) < n)
     render_times: list[float] = []
     try:
         for k in track(todo, len(todo), f"render {scenario.name}", progress):
@@ -477,7 +413,8 @@ def _check_render_settings(out_dir: Path, settings: dict, resuming: bool) -> Non
         if before != settings:
             raise DriveError(
                 f"{out_dir} holds frames rendered with {before or 'unrecorded settings'}, "
-                f"this render uses {settings}; pass the same --face-px, or use another "
+                f"this render uses {settings}; pass the same --renderer and --face-px, or "
+                "use another "
                 "--out folder"
             )
     io.write_json(path, settings)

@@ -47,11 +47,11 @@ from estimator.camera.files import resolve_camera
 from estimator.camera.models import CameraModel, vignetting_gain
 from estimator.camera.mount import CameraMount
 from sim.camera_motion import CameraPose, T_world_car, Vibration, camera_pose
-from sim.drive import (
+from sim.drive import scene_flow_px
+from sim.frame_renderer import (
     WorldScenes,
     default_face_px,
     imaged_mask,
-    scene_flow_px,
     static_pyrender_mesh,
 )
 from sim.gl import pyrender  # OSMesa platform and pyrender fixes (sim/gl.py)

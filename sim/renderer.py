@@ -55,36 +55,52 @@ class CubeMapLookup:
     """Per-pixel cube-map lookup of a camera, computed once.
 
     faces: names of the faces to render, in atlas order.
-    face_px: side of a face image [px]; focal_px: its focal length [px].
-    map1, map2: fixed-point maps for ``cv2.remap`` into the face atlas
-        (faces stacked vertically, each ``face_px`` tall).
+    face_px: side of a whole face [px]; focal_px: its focal length [px].
+    window_px: (width, height) of the part of each face rendered [px] (the whole face,
+        or the smallest window that holds every pixel asked for, when windowed).
+    window_origin: per face, the (col, row) of its window's corner in the whole face [px].
+    map_x, map_y, map1, map2: maps for ``cv2.remap`` into the face atlas (windows
+        stacked vertically, each ``window_px[1]`` tall).
     cos_to_axis: (H, W) float32, -d_face_z of each pixel's unit ray: converts the
         rendered z-depth to range along the ray.
-    valid: (H, W) bool, pixels with a valid ray.
+    valid: (H, W) bool, pixels with a valid ray; pixels: (H, W) bool, those looked up.
+    body_only: faces that no valid pixel sees (the car body under an omni mirror).
     """
 
     faces: list[str]
     face_px: int
     focal_px: float
+    window_px: tuple[int, int]
+    window_origin: list[tuple[int, int]]
     map_x: np.ndarray
     map_y: np.ndarray
     map1: np.ndarray
     map2: np.ndarray
     cos_to_axis: np.ndarray
     valid: np.ndarray
+    pixels: np.ndarray
     body_only: list[str]
 
     @classmethod
-    def build(cls, camera: CameraModel, face_px: int, render_invalid: bool = True) -> CubeMapLookup:
+    def build(
+        cls,
+        camera: CameraModel,
+        face_px: int,
+        render_invalid: bool = True,
+        pixels: np.ndarray | None = None,
+        windowed: bool = False,
+    ) -> CubeMapLookup:
         """Assign each pixel's ray to a face and a texel.
 
         render_invalid: also fill pixels outside the valid field of view that have
-        an image (e.g. the car body in the centre of an omni image).
+            an image (e.g. the car body in the centre of an omni image).
+        pixels: (H, W) bool, only these pixels (default: by render_invalid).
+        windowed: render only the window of each face that these pixels see.
         """
         rays = camera.pixel_rays().astype(np.float64)  # (H, W, 3) unit rays
         valid = camera.valid_mask()
         has_ray = np.all(np.isfinite(rays), axis=-1)
-        use = has_ray if render_invalid else valid
+        use = (has_ray if render_invalid else valid) if pixels is None else pixels & has_ray
         focal = (face_px - 3.0) / 2.0  # tan = +-1 at 1.5 px inside the border
         c = (face_px - 1) / 2.0
         H, W = valid.shape
@@ -98,17 +114,80 @@ class CubeMapLookup:
         sign = np.take_along_axis(r, axis[..., None], axis=-1)[..., 0] >= 0
         face_index = np.where(use, axis * 2 + (~sign), -1)  # +x,-x,+y,-y,+z,-z
         used_faces = [names[i] for i in range(6) if np.any(face_index == i)]
-        for slot, name in enumerate(used_faces):
+        coords = {}
+        for name in used_faces:
             sel = face_index == names.index(name)
             d = rays[sel] @ face_rotation(name)  # ray in face (GL) coordinates
             depth_dir = -d[:, 2]
-            map_x[sel] = c + focal * d[:, 0] / depth_dir
-            map_y[sel] = slot * face_px + c - focal * d[:, 1] / depth_dir
+            coords[name] = (sel, c + focal * d[:, 0] / depth_dir, c - focal * d[:, 1] / depth_dir)
             cos_axis[sel] = depth_dir
+        if windowed and used_faces:  # 2 texels of margin for the bilinear lookup
+            lo = {
+                n: (max(0, int(np.floor(x.min())) - 2), max(0, int(np.floor(y.min())) - 2))
+                for n, (_, x, y) in coords.items()
+            }
+            hi = {
+                n: (
+                    min(face_px, int(np.ceil(x.max())) + 3),
+                    min(face_px, int(np.ceil(y.max())) + 3),
+                )
+                for n, (_, x, y) in coords.items()
+            }
+            win = (
+                max(hi[n][0] - lo[n][0] for n in used_faces),
+                max(hi[n][1] - lo[n][1] for n in used_faces),
+            )
+            origin = [
+                (min(lo[n][0], face_px - win[0]), min(lo[n][1], face_px - win[1]))
+                for n in used_faces
+            ]
+        else:
+            win, origin = (face_px, face_px), [(0, 0)] * len(used_faces)
+        for slot, name in enumerate(used_faces):
+            sel, x, y = coords[name]
+            map_x[sel] = x - origin[slot][0]
+            map_y[sel] = slot * win[1] + y - origin[slot][1]
         m1, m2 = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
         # faces that only valid-less pixels (the car body under an omni mirror) look up
         body_only = [n for n in used_faces if not np.any(valid & (face_index == names.index(n)))]
-        return cls(used_faces, face_px, focal, map_x, map_y, m1, m2, cos_axis, valid, body_only)
+        return cls(
+            used_faces,
+            face_px,
+            focal,
+            win,
+            origin,
+            map_x,
+            map_y,
+            m1,
+            m2,
+            cos_axis,
+            valid,
+            use,
+            body_only,
+        )
+
+    def face_masks(self) -> list[np.ndarray]:
+        """(H, W) bool per face: the pixels that look it up."""
+        h = self.window_px[1]
+        slot = np.where(self.pixels, np.floor(self.map_y / h), -1)
+        return [slot == i for i in range(len(self.faces))]
+
+    def gl_cameras(self, z_near: float, z_far: float) -> list[pyrender.IntrinsicsCamera]:
+        """One GL camera per face that renders its window: the face's centre (c, c) in
+        centre-index coordinates of the whole face is (c - x0, c - y0) in its window's;
+        pyrender puts a pixel's centre at +0.5 from its index, rows down from the top."""
+        c = (self.face_px - 1) / 2.0
+        return [
+            pyrender.IntrinsicsCamera(
+                fx=self.focal_px,
+                fy=self.focal_px,
+                cx=c - x0 + 0.5,
+                cy=c - y0 + 0.5,
+                znear=z_near,
+                zfar=z_far,
+            )
+            for x0, y0 in self.window_origin
+        ]
 
 
 def finest_pixel_angle_rad(camera: CameraModel) -> float:
@@ -140,25 +219,25 @@ class OmniRenderer:
         z_near: float = 0.05,
         z_far: float = 400.0,
         cache_body_faces: bool = True,
+        pixels: np.ndarray | None = None,
+        windowed: bool = False,
     ) -> None:
         """cache_body_faces: render the faces that only show the car body (which moves
         with the camera) once and reuse them: at the first pose rendered, or at the pose
         given to `keep_body_faces` first (a drive gives its frame 0's, so that a render
-        resumed at any frame writes the same body pixels as an uninterrupted one)."""
+        resumed at any frame writes the same body pixels as an uninterrupted one).
+        pixels, windowed: see `CubeMapLookup.build`."""
         self.camera = camera
         self.cache_body_faces = cache_body_faces
         self._face_cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-        self.lookup = CubeMapLookup.build(camera, face_px)
+        self.lookup = CubeMapLookup.build(camera, face_px, pixels=pixels, windowed=windowed)
         # anti-aliasing: a camera pixel is a bilinear point sample of a face; faces finer
         # than the camera are low-passed first, to about the camera's pixel (Gaussian,
         # sigma half a camera pixel at the face centre), so that texture finer than the
         # pixel averages out instead of aliasing (`remap_color`)
         self.prefilter_sigma_px = prefilter_sigma_px(camera, self.lookup.focal_px)
-        fov = 2.0 * np.arctan((face_px / 2.0) / self.lookup.focal_px)
-        self._gl_camera = pyrender.PerspectiveCamera(
-            yfov=fov, aspectRatio=1.0, znear=z_near, zfar=z_far
-        )
-        self._renderer = pyrender.OffscreenRenderer(face_px, face_px)
+        self._gl_cameras = self.lookup.gl_cameras(z_near, z_far)
+        self._renderer = pyrender.OffscreenRenderer(*self.lookup.window_px)
         self._R_face = {n: face_rotation(n) for n in self.lookup.faces}
 
     def close(self) -> None:
@@ -184,16 +263,20 @@ class OmniRenderer:
         todo = [n for n in self.lookup.body_only if (id(scene), flat, n) not in self._face_cache]
         if not todo:
             return
-        node = scene.add(self._gl_camera, pose=np.eye(4))
+        node = scene.add(self._gl_cameras[0], pose=np.eye(4))
         flags = pyrender.RenderFlags.FLAT if flat else pyrender.RenderFlags.NONE
         try:
-            for name, pose in zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True):
+            for slot, (name, pose) in enumerate(
+                zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True)
+            ):
                 if name in todo:
+                    node.camera = self._gl_cameras[slot]
                     scene.set_pose(node, pose)
                     self._face_cache[(id(scene), flat, name)] = self._renderer.render(
                         scene, flags=flags
                     )
         finally:
+            node.camera = self._gl_cameras[0]  # the one the scene registered
             scene.remove_node(node)
 
     def render_atlas(
@@ -203,16 +286,20 @@ class OmniRenderer:
         flat: bool = False,
         depth: bool = False,
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Face atlas (n_faces * F, F, 3) uint8 and optionally depth (n_faces * F, F)."""
-        node = scene.add(self._gl_camera, pose=np.eye(4))
+        """Face atlas (n_faces * h, w, 3) uint8 and optionally depth (n_faces * h, w), with
+        (w, h) the faces' window (``lookup.window_px``)."""
+        node = scene.add(self._gl_cameras[0], pose=np.eye(4))
         flags = pyrender.RenderFlags.FLAT if flat else pyrender.RenderFlags.NONE
         colors, depths = [], []
         try:
-            for name, pose in zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True):
+            for slot, (name, pose) in enumerate(
+                zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True)
+            ):
                 key = (id(scene), flat, name)
                 if key in self._face_cache:
                     c, d = self._face_cache[key]
                 else:
+                    node.camera = self._gl_cameras[slot]
                     scene.set_pose(node, pose)
                     c, d = self._renderer.render(scene, flags=flags)
                     if self.cache_body_faces and name in self.lookup.body_only:
@@ -220,6 +307,7 @@ class OmniRenderer:
                 colors.append(c)
                 depths.append(d)
         finally:
+            node.camera = self._gl_cameras[0]  # the one the scene registered
             scene.remove_node(node)
         atlas = np.concatenate(colors, axis=0)
         return atlas, (np.concatenate(depths, axis=0) if depth else None)
@@ -230,7 +318,7 @@ class OmniRenderer:
         lk = self.lookup
         if self.prefilter_sigma_px > 0:  # face by face (no blur across a face border), in
             # place; faces that only show the car body (outside the valid view) are left
-            F, sig = lk.face_px, self.prefilter_sigma_px
+            F, sig = lk.window_px[1], self.prefilter_sigma_px
             for i, name in enumerate(lk.faces):
                 if name not in lk.body_only:
                     face = atlas[i * F : (i + 1) * F]

@@ -38,13 +38,13 @@ def gain_sequence(n: int, drift_std: float, rng: np.random.Generator) -> np.ndar
     return g
 
 
-_BORDER = cv2.BORDER_REPLICATE  # of the motion blur's samples
-
-
 def exposure_times(exposure_s: float, samples: int = 5) -> np.ndarray:
     """(samples,) times [s] of the motion-blur samples relative to the frame's time: the
     middles of equal parts of an exposure centred on it (their mean is the time average)."""
     return (np.arange(samples) + 0.5) / samples * exposure_s - exposure_s / 2
+
+
+_BORDER = cv2.BORDER_REPLICATE  # of the motion blur's samples
 
 
 def motion_blur(image: np.ndarray, displacements_px: Sequence[np.ndarray]) -> np.ndarray:
@@ -65,9 +65,21 @@ def motion_blur(image: np.ndarray, displacements_px: Sequence[np.ndarray]) -> np
     out = np.zeros(image.shape, np.float32)
     for d in displacements_px:
         d = np.asarray(d, np.float32)
+        if not d.any():  # the sample at the frame's time
+            out += image
+            continue
         d = cv2.remap(d, u - d[..., 0], v - d[..., 1], cv2.INTER_LINEAR, borderMode=_BORDER)
         out += cv2.remap(image, u - d[..., 0], v - d[..., 1], cv2.INTER_LINEAR, borderMode=_BORDER)
     return out / len(displacements_px)
+
+
+def gaussian_noise(shape: tuple, std: float, seed: int) -> np.ndarray:
+    """float32 array of the shape, N(0, std^2), the same for the same seed (OpenCV's
+    generator, seeded in this thread)."""
+    out = np.empty(int(np.prod(shape)), np.float32)
+    cv2.setRNGSeed(int(seed))
+    cv2.randn(out, 0.0, float(std))
+    return out.reshape(shape)
 
 
 def apply_sensor(
@@ -92,7 +104,7 @@ def apply_sensor(
     if model.motion_blur and blur_px is not None:
         img = motion_blur(img, blur_px)
     if model.noise_std > 0:
-        img += np.float32(model.noise_std) * rng.standard_normal(img.shape, dtype=np.float32)
+        img += gaussian_noise(img.shape, model.noise_std, int(rng.integers(0, 2**31 - 1)))
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     if mask is not None:
         out[~mask] = 0

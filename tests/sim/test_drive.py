@@ -204,14 +204,20 @@ def test_resume_with_another_face_size_is_refused(drive_dir, tmp_path):
 def test_default_face_is_finer_than_the_camera(preset):
     from estimator.camera.files import resolve_camera
     from estimator.synthetic import pixel_angle_rad
+    from sim import frame_renderer as fr
 
     cam, _ = resolve_camera(preset)
-    face = drive_mod.default_face_px(cam)
+    finest = np.percentile(pixel_angle_rad(cam)[cam.valid_mask()], 1)
+    # the cube renderer: a power of two, FACE_OVERSAMPLING x finer, not 2x more
+    face = fr.default_face_px(cam)
     texel_rad = np.arctan(2.0 / (face - 3))  # at the face centre, its coarsest
-    angle = pixel_angle_rad(cam)[cam.valid_mask()]
-    assert texel_rad * drive_mod.FACE_OVERSAMPLING <= np.percentile(angle, 1) * 1.0001
-    # one size smaller would not be: the rule does not overshoot by more than 2x
-    assert np.arctan(2.0 / (face / 2 - 3)) * drive_mod.FACE_OVERSAMPLING > np.percentile(angle, 1)
+    assert texel_rad * fr.FACE_OVERSAMPLING <= finest * 1.0001
+    assert np.arctan(2.0 / (face / 2 - 3)) * fr.FACE_OVERSAMPLING > finest
+    # the objects' faces of the plane renderer: a multiple of 8, OBJECT_OVERSAMPLING x finer
+    face = fr.object_face_px(cam)
+    assert face % 8 == 0
+    assert np.arctan(2.0 / (face - 3)) * fr.OBJECT_OVERSAMPLING <= finest * 1.0001
+    assert np.arctan(2.0 / (face - 8 - 3)) * fr.OBJECT_OVERSAMPLING > finest
 
 
 def test_every_frame_is_blurred_by_the_motion_also_the_last(tmp_path):

@@ -103,7 +103,7 @@ def test_coplanar_road_markings_and_grass_are_each_seen_where_they_lie():
     25 m away is seen whole (no surface of the road plane drawn over it)."""
     import cv2
 
-    from sim.drive import static_pyrender_mesh
+    from sim.frame_renderer import static_pyrender_mesh
 
     cam, mount = resolve_camera({"preset": "omni-near", "width": 240, "height": 240})
     T_world_cam = make_T(mount.R_car_cam, mount.position_m)

@@ -1,0 +1,528 @@
+"""The road plane rendered analytically: every camera pixel's ray meets z = 0 exactly.
+
+The road, its markings and the grass beside it are one plane (docs/CONVENTIONS.md).
+Instead of rasterising that plane into cube faces and resampling the faces (a texture
+pattern on a grid fixed to the camera, which pulls the image motion towards zero), each
+pixel's ray is intersected with the plane and the plane's appearance is integrated over
+the pixel's own footprint there:
+
+- The footprint is the image of a Gaussian pixel response (`PIXEL_SIGMA_PX`) through the
+  ray-plane map, an ellipse on the plane [m] (`_footprints`).
+- As GPUs filter anisotropically, the ellipse is covered by up to `MAX_PROBES` probes
+  along its major axis, Gaussian weighted; each probe reads mip levels as wide as the
+  minor axis (trilinear: two levels, blended).
+- Textures (asphalt, grass) are periodic tiles in world metres (`MipTexture`). Where
+  the road and its markings are is a world raster of coverage (`CoverageMap`): a fine
+  window of tiles around the camera and a coarse map of the whole area, with mips.
+
+Everything is a function of the world point and the pixel's footprint, never of a grid
+fixed to the camera, so the road moves in the images exactly as the plane-induced
+homography says (`scenarios.motion_fidelity` measures it). The per-frame work, a loop
+over every probe, is one compiled kernel (`_shade`, numba, parallel over pixels).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from estimator.camera.models import CameraModel
+
+PIXEL_SIGMA_PX = 0.5  # [px] std of a camera pixel's Gaussian response, 0.3..1
+MAX_PROBES = 8  # [-] most probes along a footprint's major axis, 1..32
+FINE_CELL_M = 0.025  # [m] cell of the fine coverage raster, 0.01..0.05
+FINE_LEVELS = 4  # [-] mip levels of the fine raster (2.5, 5, 10, 20 cm), 1..6
+TILE_CELLS = 512  # [cells] side of a fine coverage tile (12.8 m at 2.5 cm), 64..2048
+WINDOW_TILES = 7  # [tiles] side of the fine window around the camera (odd), 3..15
+COARSE_CELL_M = 0.2  # [m] cell of the whole area's coverage raster, 0.05..1
+COARSE_SUPERSAMPLE = 4  # [-] the coarse raster averages this many^2 point samples, 1..8
+MAX_RANGE_M = 400.0  # [m] ground farther along the ray is not drawn (sky)
+DISPLAY_GAMMA = 2.2  # [-] pixel value = 255 * linear radiance ** (1 / gamma), as pyrender
+
+
+def srgb_to_linear(image: np.ndarray) -> np.ndarray:
+    """float32 linear values [0, 1] of sRGB-encoded uint8 values (IEC 61966-2-1)."""
+    c = np.asarray(image, np.float32) / np.float32(255.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def _mips(level0: np.ndarray, n_levels: int) -> list[np.ndarray]:
+    """level0 (R, C, K) and its box-filtered halvings, n_levels in all at most."""
+    levels = [level0]
+    while len(levels) < n_levels and min(levels[-1].shape[:2]) >= 2:
+        lv = levels[-1]
+        half = cv2.resize(lv, (lv.shape[1] // 2, lv.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        levels.append(half.reshape(half.shape[0], half.shape[1], lv.shape[2]))
+    return levels
+
+
+class MipAtlas:
+    """An image on the plane (R, C, K) and its mips, packed side by side in one atlas.
+
+    Level k has cells of ``cell_m * 2**k`` [m]; its cell (0, 0) is at atlas column
+    ``col[k]`` and row ``row0``, with its corner at the plane point ``origin_xy`` [m].
+    Periodic images (textures, ``period[k]`` cells) are padded with 2 wrapped cells on
+    the right and bottom; others (coverage rasters, ``period[k] = 0``) are framed by one
+    empty cell, so that reads outside them give 0.
+    """
+
+    def __init__(self, levels: list, cell_m: float, periodic: bool, origin_xy=(0.0, 0.0)):
+        K = levels[0].shape[2]
+        pad = 0 if periodic else 1
+        if periodic:
+            padded = [cv2.copyMakeBorder(lv, 0, 2, 0, 2, cv2.BORDER_WRAP) for lv in levels]
+        else:
+            padded = [cv2.copyMakeBorder(lv, 1, 1, 1, 1, cv2.BORDER_CONSTANT, 0) for lv in levels]
+        padded = [p.reshape(p.shape[0], p.shape[1], K) for p in padded]
+        widths = [p.shape[1] for p in padded]
+        self.col = (np.cumsum([0, *widths[:-1]]) + pad).astype(np.float64)  # (L,)
+        self.row0 = float(pad)
+        self.atlas = np.zeros((padded[0].shape[0], sum(widths), K), levels[0].dtype)
+        for p, c in zip(padded, self.col, strict=True):
+            self.atlas[: p.shape[0], int(c) - pad : int(c) - pad + p.shape[1]] = p
+        self.cell_m = float(cell_m)
+        self.per_m = 1.0 / (self.cell_m * 2.0 ** np.arange(len(levels)))  # (L,) cells per m
+        sizes = np.array([lv.shape[1] for lv in levels], np.float64)
+        self.period = sizes if periodic else np.zeros(len(levels))
+        self.origin_xy = np.asarray(origin_xy, np.float64)
+
+    @property
+    def n_levels(self) -> int:
+        return len(self.col)
+
+    def put(self, level: int, row: int, col: int, block: np.ndarray) -> None:
+        """Write block (r, c, K) at cell (row, col) of a level."""
+        c0, r0 = int(self.col[level]) + col, int(self.row0) + row
+        self.atlas[r0 : r0 + block.shape[0], c0 : c0 + block.shape[1]] = block
+
+    def levels(self, blur_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P,) int64 mip level and (P,) float64 blend towards the next one: the level
+        whose cells are twice a blur std (P,) [m] (trilinear filtering)."""
+        with np.errstate(divide="ignore"):
+            lam = np.log2(np.maximum(2.0 * np.asarray(blur_m) / self.cell_m, 1e-12))
+        lam = np.clip(lam, 0.0, self.n_levels - 1)
+        lo = np.minimum(np.floor(lam), max(self.n_levels - 2, 0))
+        return lo.astype(np.int64), np.clip(lam - lo, 0.0, 1.0)
+
+
+class MipTexture(MipAtlas):
+    """A periodic texture tile (N, N, 3), N a power of two, laid on the plane with period
+    tile_m [m].
+
+    srgb: the image is sRGB-encoded uint8 and the atlas holds linear values [0, 1]
+    (filtered in linear space); otherwise the image's values as float32.
+    """
+
+    def __init__(self, image: np.ndarray, tile_m: float, srgb: bool = False) -> None:
+        image = np.asarray(image)
+        if image.ndim != 3 or image.shape[0] != image.shape[1] or image.shape[2] != 3:
+            raise ValueError(f"texture must be (N, N, 3), got {image.shape}")
+        n = image.shape[0]
+        if n & (n - 1):
+            raise ValueError(f"texture side must be a power of two, got {n}")
+        level0 = srgb_to_linear(image) if srgb else image.astype(np.float32)
+        super().__init__(_mips(level0, 64), float(tile_m) / n, periodic=True)
+        self.tile_m = float(tile_m)
+
+
+def rasterize_coverage(
+    polygons: list[np.ndarray], origin_xy: tuple[float, float], cell_m: float, shape: tuple
+) -> np.ndarray:
+    """(rows, cols) uint8 raster, 255 where a cell's centre lies in one of the convex
+    polygons (each (K, 2) world [m]); cell (0, 0) has its corner at origin_xy."""
+    out = np.zeros(shape, np.uint8)
+    shift = 8
+    scale = float(1 << shift)
+    ox, oy = origin_xy
+    rows, cols = shape
+    for poly in polygons:
+        c = (poly - (ox, oy)) / cell_m - 0.5  # centre-index coordinates
+        if c[:, 0].max() < -1 or c[:, 1].max() < -1 or c[:, 0].min() > cols or c[:, 1].min() > rows:
+            continue
+        cv2.fillConvexPoly(out, np.round(c * scale).astype(np.int32), 255, cv2.LINE_8, shift)
+    return out
+
+
+class CoverageMap:
+    """Where the road and its markings are on the plane: convex polygons (world, [m])
+    rasterised at FINE_CELL_M in square tiles, built once each and kept (the window of
+    tiles around the camera is one framed `MipAtlas`), and at COARSE_CELL_M over the area.
+
+    A tile's cells depend on the world only, so a render resumed at any frame draws the
+    same road.
+    """
+
+    def __init__(self, road: list[np.ndarray], markings: list[np.ndarray], area_xy: tuple) -> None:
+        self.road, self.markings = road, markings
+        self._boxes = {"road": _bboxes(road), "markings": _bboxes(markings)}
+        xmin, xmax, ymin, ymax = area_xy
+        cell = COARSE_CELL_M
+        ox, oy = np.floor(xmin / cell) * cell, np.floor(ymin / cell) * cell
+        cols = int(np.ceil((xmax - ox) / cell))
+        rows = int(np.ceil((ymax - oy) / cell))
+        ss = COARSE_SUPERSAMPLE
+        level0 = np.zeros((rows, cols, 2), np.uint8)
+        step = max(1, 2048 // ss)  # rasterised in chunks of step x step coarse cells
+        for r in range(0, rows, step):
+            for c in range(0, cols, step):
+                h, w = min(step, rows - r), min(step, cols - c)
+                o = (ox + c * cell, oy + r * cell)
+                fine = self._rasterize(o, cell / ss, h * ss, w * ss)
+                level0[r : r + h, c : c + w] = cv2.resize(fine, (w, h), cv2.INTER_AREA)
+        self.coarse = MipAtlas(_mips(level0, 16), cell, periodic=False, origin_xy=(ox, oy))
+        n = TILE_CELLS * WINDOW_TILES
+        self.fine = MipAtlas(
+            _mips(np.zeros((n, n, 2), np.uint8), FINE_LEVELS), FINE_CELL_M, periodic=False
+        )
+        self._window: tuple[int, int] | None = None
+        self._tiles: OrderedDict[tuple[int, int], list[np.ndarray]] = OrderedDict()
+
+    @property
+    def tile_m(self) -> float:
+        return TILE_CELLS * FINE_CELL_M
+
+    @property
+    def reach_m(self) -> float:
+        """[m] the fine window holds at least this much plane around the camera."""
+        return (WINDOW_TILES // 2) * self.tile_m
+
+    def _rasterize(self, origin, cell_m: float, rows: int, cols: int) -> np.ndarray:
+        """(rows, cols, 2) uint8 point-sampled (road, marking) coverage."""
+        out = np.zeros((rows, cols, 2), np.uint8)
+        box = (origin[0], origin[0] + cols * cell_m, origin[1], origin[1] + rows * cell_m)
+        for ch, name in enumerate(("road", "markings")):
+            polys = getattr(self, name)
+            lo, hi = self._boxes[name]
+            near = (
+                (lo[:, 0] <= box[1])
+                & (hi[:, 0] >= box[0])
+                & (lo[:, 1] <= box[3])
+                & (hi[:, 1] >= box[2])
+            )
+            out[..., ch] = rasterize_coverage(
+                [p for p, k in zip(polys, near, strict=True) if k], origin, cell_m, (rows, cols)
+            )
+        return out
+
+    def _tile(self, i: int, j: int) -> list[np.ndarray]:
+        key = (i, j)
+        if key in self._tiles:
+            self._tiles.move_to_end(key)
+            return self._tiles[key]
+        origin = (i * self.tile_m, j * self.tile_m)
+        levels = _mips(self._rasterize(origin, FINE_CELL_M, TILE_CELLS, TILE_CELLS), FINE_LEVELS)
+        self._tiles[key] = levels
+        while len(self._tiles) > 3 * WINDOW_TILES**2:
+            self._tiles.popitem(last=False)
+        return levels
+
+    def follow(self, x_m: float, y_m: float) -> None:
+        """Centre the fine window on the tile holding the camera at (x_m, y_m) [m]."""
+        ci, cj = int(np.floor(x_m / self.tile_m)), int(np.floor(y_m / self.tile_m))
+        if (ci, cj) == self._window:
+            return
+        h = WINDOW_TILES // 2
+        self.fine.origin_xy = np.array([(ci - h) * self.tile_m, (cj - h) * self.tile_m])
+        for a in range(WINDOW_TILES):
+            for b in range(WINDOW_TILES):
+                for k, lv in enumerate(self._tile(ci - h + a, cj - h + b)):
+                    n = lv.shape[0]
+                    self.fine.put(k, b * n, a * n, lv)
+        self._window = (ci, cj)
+
+
+def _bboxes(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    if not polys:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return np.array([p.min(axis=0) for p in polys]), np.array([p.max(axis=0) for p in polys])
+
+
+@dataclass(frozen=True)
+class GroundLook:
+    """What the plane looks like: its materials' albedo and how brightly each is lit.
+
+    Shading is done on linear values, as in pyrender's shader: a pixel is
+    ``255 * (sum of footprint weight * radiance) ** (1 / DISPLAY_GAMMA)``, a material's
+    radiance being its irradiance factor times its linear albedo.
+
+    asphalt, grass: periodic textures, linear albedo (`MipTexture` with ``srgb=True``);
+    marking_albedo: (3,) linear albedo of the paint [-]; k_*: irradiance factors [-].
+    """
+
+    asphalt: MipTexture
+    grass: MipTexture
+    marking_albedo: np.ndarray
+    k_road: float = 1.0
+    k_grass: float = 1.0
+    k_marking: float = 1.0
+
+
+@dataclass
+class GroundImage:
+    """The plane seen from one pose: rgb (H, W, 3) float32 [DN] where hit (blended with
+    the sky where part of a pixel's footprint misses the plane), range_m (H, W) float32
+    along the pixel's ray [m] (inf where it misses or is not drawn), hit (H, W) bool."""
+
+    rgb: np.ndarray
+    range_m: np.ndarray
+    hit: np.ndarray
+
+
+class GroundRenderer:
+    """Renders the road plane for one camera.
+
+    The probes of every pixel are camera rays, chosen once at a reference pose (the
+    camera's nominal pose on its car: height and tilt above the plane): the footprint's
+    major axis on the plane, seen back in the image, is where a pixel's probes lie; each
+    probe's mip levels follow from its blur there. Per frame, only the probes' rays meet
+    the plane at the actual pose: positions are exact; the footprint shapes are those of
+    the nominal pose (vibration changes them by a few per cent: blur, not position).
+    """
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        T_world_cam_ref: np.ndarray,
+        look: GroundLook,
+        coverage: CoverageMap,
+        sky_rgb: np.ndarray,
+        pixels: np.ndarray | None = None,
+    ) -> None:
+        """sky_rgb: (3,) sky colour [DN]; pixels: (H, W) bool, the pixels to draw (default:
+        the valid ones)."""
+        self.camera, self.look, self.coverage = camera, look, coverage
+        self.sky_linear = (np.asarray(sky_rgb, np.float64) / 255.0) ** DISPLAY_GAMMA
+        H, W = camera.height, camera.width
+        self.shape = (H, W)
+        rays = camera.pixel_rays().reshape(-1, 3).astype(np.float64)
+        R, o = T_world_cam_ref[:3, :3], T_world_cam_ref[:3, 3]
+        d = rays @ R.T
+        # pixels that may see the plane: rays below 1 deg above the horizon there
+        pixels = camera.valid_mask() if pixels is None else np.asarray(pixels, bool)
+        near = pixels.reshape(-1) & (d[:, 2] < np.sin(np.radians(1.0)))
+        idx = np.flatnonzero(near)
+        w = np.stack([idx % W, idx // W], axis=1).astype(np.float64)
+        foot = _footprints(camera, w, R, o)
+        # pixels whose probes all read the fine coverage window come first
+        top_fine = FINE_CELL_M * 2.0 ** (FINE_LEVELS - 1)
+        fine = (foot.far_m < 0.8 * coverage.reach_m) & (2.0 * foot.blur_m <= top_fine)
+        order = np.argsort(~fine, kind="stable")
+        self.pixel = idx[order]  # (N,) flat pixel index
+        self.n_fine_pixels = int(fine.sum())
+        n = foot.n[order]
+        self.starts = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)  # (N + 1,)
+        pix = np.repeat(np.arange(len(n)), n)
+        j = np.arange(len(pix)) - self.starts[pix]
+        sel = order[pix]
+        tau = np.where(n[pix] > 1, j / np.maximum(n[pix] - 1, 1) - 0.5, 0.0)  # -0.5..0.5
+        w_probe = w[sel] + tau[:, None] * foot.extent_px[sel]
+        self.probe_rays = np.nan_to_num(camera.unproject(w_probe))  # (P, 3)
+        wt = np.exp(-0.5 * (4.0 * tau) ** 2)  # Gaussian over +-2 spread
+        self.weight = wt / np.add.reduceat(wt, self.starts[:-1])[pix]  # (P,)
+        blur = foot.blur_m[sel]
+        nf = int(self.starts[self.n_fine_pixels])
+        self.lvl_asphalt = look.asphalt.levels(blur)
+        self.lvl_grass = look.grass.levels(blur)
+        fine_lv, coarse_lv = coverage.fine.levels(blur[:nf]), coverage.coarse.levels(blur[nf:])
+        self.lvl_cover = tuple(np.concatenate(p) for p in zip(fine_lv, coarse_lv, strict=True))
+        self.centre_rays = rays[self.pixel]  # (N, 3)
+
+    @property
+    def probes(self) -> int:
+        return len(self.weight)
+
+    def render(self, T_world_cam: np.ndarray) -> GroundImage:
+        """The plane seen from T_world_cam (4, 4), on the sky."""
+        H, W = self.shape
+        sky = np.float32(255.0) * self.sky_linear.astype(np.float32) ** (1.0 / DISPLAY_GAMMA)
+        image = np.empty((H, W, 3), np.float32)
+        image[:] = sky
+        range_m = np.full((H, W), np.inf, np.float32)
+        hit = self.render_into(T_world_cam, image, range_m)
+        return GroundImage(image, range_m, hit)
+
+    def render_into(
+        self, T_world_cam: np.ndarray, image: np.ndarray, range_m: np.ndarray
+    ) -> np.ndarray:
+        """Draw the plane seen from T_world_cam (4, 4) into image (H, W, 3) float32 [DN]
+        and range_m (H, W) float32 [m] (where a pixel's centre ray meets it); returns the
+        (H, W) bool pixels drawn."""
+        R, o = T_world_cam[:3, :3].astype(np.float64), T_world_cam[:3, 3].astype(np.float64)
+        cm, look = self.coverage, self.look
+        cm.follow(float(o[0]), float(o[1]))
+        paint = np.asarray(look.marking_albedo, np.float64) * look.k_marking
+        _shade(
+            self.probe_rays, self.weight, self.starts, self.n_fine_pixels, R, o,
+            _atlas_args(look.asphalt, o), self.lvl_asphalt[0], self.lvl_asphalt[1],
+            _atlas_args(look.grass, o), self.lvl_grass[0], self.lvl_grass[1],
+            _atlas_args(cm.fine, o), _atlas_args(cm.coarse, o),
+            self.lvl_cover[0], self.lvl_cover[1],
+            float(look.k_road), float(look.k_grass), paint, self.sky_linear,
+            1.0 / DISPLAY_GAMMA, MAX_RANGE_M, self.pixel, self.centre_rays,
+            image.reshape(-1, 3), range_m.reshape(-1),
+        )  # fmt: skip
+        hit = np.zeros(image.shape[:2], bool)
+        hit.reshape(-1)[self.pixel] = True
+        return hit
+
+
+def _atlas_args(a: MipAtlas, o: np.ndarray) -> tuple:
+    """What the kernel reads of an atlas: the atlas, per-level cells per metre, period and
+    column, the row of cell (0, 0), and the camera's offset from the atlas' origin [m]
+    (modulo a periodic atlas' period, so that the kernel's numbers stay small)."""
+    off = o[:2] - a.origin_xy
+    if a.period[0] > 0:
+        off = np.mod(off, a.period[0] * a.cell_m)
+    return (a.atlas, a.per_m, a.period, a.col, a.row0, float(off[0]), float(off[1]))
+
+
+@njit(cache=True, inline="always")
+def _coords(args, level, x, y):
+    """Atlas coordinates [cells] at a mip level of the plane point (x, y) [m], given
+    relative to the camera."""
+    per, period = args[1][level], args[2][level]
+    u = (x + args[5]) * per - 0.5
+    v = (y + args[6]) * per - 0.5
+    if period > 0.0:
+        inv = 1.0 / period
+        u -= np.floor(u * inv) * period
+        v -= np.floor(v * inv) * period
+    return u + args[3][level], v + args[4]
+
+
+@njit(cache=True, inline="always")
+def _bilinear_into(atlas, x, y, weight, out):
+    """out[:K] += weight * bilinear sample of atlas (R, C, K) at centre-index coordinates
+    (x, y) [cells]; nothing where a neighbour is outside."""
+    x0f, y0f = np.floor(x), np.floor(y)
+    fx, fy = x - x0f, y - y0f
+    x0, y0 = int(x0f), int(y0f)
+    if x0 < 0 or y0 < 0 or x0 + 1 >= atlas.shape[1] or y0 + 1 >= atlas.shape[0]:
+        return
+    w00, w01 = weight * (1.0 - fx) * (1.0 - fy), weight * fx * (1.0 - fy)
+    w10, w11 = weight * (1.0 - fx) * fy, weight * fx * fy
+    for c in range(atlas.shape[2]):
+        out[c] += (
+            w00 * atlas[y0, x0, c]
+            + w01 * atlas[y0, x0 + 1, c]
+            + w10 * atlas[y0 + 1, x0, c]
+            + w11 * atlas[y0 + 1, x0 + 1, c]
+        )
+
+
+@njit(cache=True, inline="always")
+def _trilinear_into(args, level, frac, x, y, weight, out):
+    """out[:K] += weight * trilinear sample of a `MipAtlas` (`_atlas_args`)."""
+    u, v = _coords(args, level, x, y)
+    _bilinear_into(args[0], u, v, weight * (1.0 - frac), out)
+    if frac > 0.0:
+        u, v = _coords(args, level + 1, x, y)
+        _bilinear_into(args[0], u, v, weight * frac, out)
+
+
+@njit(parallel=True, cache=True)
+def _shade(
+    rays, weight, starts, n_fine, R, o, asphalt, la, fa, grass, lg, fg, fine, coarse, lc, fc,
+    k_road, k_grass, paint, sky, inv_gamma, max_range, pixel, centre, out_rgb, out_range,
+):  # fmt: skip
+    """The colour [DN] of every pixel (N,) into out_rgb[pixel] (HW, 3), and the range of
+    its centre ray (N, 3) into out_range[pixel] (HW,) where it meets the plane: its
+    probes' rays (P, 3) meet the plane seen from pose (R, o) and read the coverage (the
+    fine window for the first n_fine pixels, else the coarse map) and the textures, each
+    trilinear; the part of the footprint off the plane is sky (linear, (3,))."""
+    for i in prange(len(starts) - 1):
+        acc = np.zeros(3)
+        cov = np.zeros(2)
+        tex = np.zeros(3)
+        cover = 0.0
+        for p in range(starts[i], starts[i + 1]):
+            dx = R[0, 0] * rays[p, 0] + R[0, 1] * rays[p, 1] + R[0, 2] * rays[p, 2]
+            dy = R[1, 0] * rays[p, 0] + R[1, 1] * rays[p, 1] + R[1, 2] * rays[p, 2]
+            dz = R[2, 0] * rays[p, 0] + R[2, 1] * rays[p, 1] + R[2, 2] * rays[p, 2]
+            if dz >= 0.0 or -o[2] >= max_range * -dz:
+                continue
+            t = -o[2] / dz
+            x, y = t * dx, t * dy
+            cov[0] = 0.0
+            cov[1] = 0.0
+            if i < n_fine:
+                _trilinear_into(fine, lc[p], fc[p], x, y, 1.0 / 255.0, cov)
+            else:
+                _trilinear_into(coarse, lc[p], fc[p], x, y, 1.0 / 255.0, cov)
+            road, mark = cov[0], cov[1]
+            tex[0] = 0.0
+            tex[1] = 0.0
+            tex[2] = 0.0
+            if road > 0.0:
+                _trilinear_into(asphalt, la[p], fa[p], x, y, road * k_road, tex)
+            if road < 1.0:
+                _trilinear_into(grass, lg[p], fg[p], x, y, (1.0 - road) * k_grass, tex)
+            w = weight[p]
+            for c in range(3):
+                acc[c] += w * (tex[c] + mark * (paint[c] - tex[c]))
+            cover += w
+        miss = 1.0 - cover
+        k = pixel[i]
+        for c in range(3):
+            out_rgb[k, c] = 255.0 * max(acc[c] + miss * sky[c], 0.0) ** inv_gamma
+        dz = R[2, 0] * centre[i, 0] + R[2, 1] * centre[i, 1] + R[2, 2] * centre[i, 2]
+        if dz < 0.0 and -o[2] < max_range * -dz:
+            out_range[k] = -o[2] / dz
+
+
+@dataclass
+class _Footprints:
+    """Per pixel (N,): probe count n, image extent of the probes (N, 2) [px] (from the
+    first to the last), spread along the major axis [m], each probe's blur [m] and the
+    farthest reach of the footprint from the camera [m]."""
+
+    n: np.ndarray
+    extent_px: np.ndarray
+    spread_m: np.ndarray
+    blur_m: np.ndarray
+    far_m: np.ndarray
+
+
+def _footprints(camera: CameraModel, w: np.ndarray, R: np.ndarray, o: np.ndarray) -> _Footprints:
+    """Footprints on the plane of the pixels w (N, 2) [px] seen from pose (R, o)."""
+
+    def plane_xy(wp: np.ndarray) -> np.ndarray:
+        d = camera.unproject(wp) @ R.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -o[2] / d[:, 2]
+        t = np.where(d[:, 2] < -1e-9, t, np.nan)
+        return np.stack([t * d[:, 0], t * d[:, 1]], axis=1)
+
+    # Jacobian of the plane point on the pixel [m/px], central differences (+-0.5 px);
+    # pixels above the horizon get the one of a ray just below it (their probes miss)
+    Ju = plane_xy(w + (0.5, 0.0)) - plane_xy(w - (0.5, 0.0))
+    Jv = plane_xy(w + (0.0, 0.5)) - plane_xy(w - (0.0, 0.5))
+    bad = ~np.all(np.isfinite(np.concatenate([Ju, Jv], axis=1)), axis=1)
+    Ju[bad], Jv[bad] = (MAX_RANGE_M * 0.01, 0.0), (0.0, MAX_RANGE_M * 0.01)
+    s2 = PIXEL_SIGMA_PX**2
+    a = s2 * (Ju[:, 0] ** 2 + Jv[:, 0] ** 2)
+    b = s2 * (Ju[:, 0] * Ju[:, 1] + Jv[:, 0] * Jv[:, 1])
+    c = s2 * (Ju[:, 1] ** 2 + Jv[:, 1] ** 2)
+    mid, rad = 0.5 * (a + c), np.sqrt(0.25 * (a - c) ** 2 + b**2)
+    major2, minor2 = mid + rad, np.maximum(mid - rad, 1e-12)
+    theta = 0.5 * np.arctan2(2.0 * b, a - c)
+    e = np.stack([np.cos(theta), np.sin(theta)], axis=1)  # major axis on the plane
+    spread = np.sqrt(np.maximum(major2 - minor2, 0.0))  # Gaussian the probes spread [m]
+    minor = np.sqrt(minor2)
+    # probes over +-2 spread, at most two blur std apart
+    n = np.clip(np.ceil(2.0 * spread / minor) + 1.0, 1, MAX_PROBES).astype(np.int64)
+    n[spread < 0.5 * minor] = 1
+    blur = np.maximum(minor, 2.0 * spread / np.maximum(n - 1, 1))
+    blur[n == 1] = np.sqrt(major2[n == 1])
+    # the probes' span on the plane (4 spread along e) seen in the image [px]
+    J = np.stack([Ju, Jv], axis=2)  # (N, 2, 2): columns d(xy)/du, d(xy)/dv
+    Jinv = np.linalg.inv(J + 1e-12 * np.eye(2))
+    extent = np.einsum("nij,nj->ni", Jinv, 4.0 * spread[:, None] * e)
+    xy = plane_xy(w)
+    far = np.hypot(xy[:, 0], xy[:, 1]) + 2.0 * spread
+    far = np.where(np.isfinite(far), far, np.inf)
+    return _Footprints(n, extent, spread, blur, far)
