@@ -21,7 +21,7 @@ from numba import njit, prange
 from sim.gl import pyrender
 from sim.ground import DISPLAY_GAMMA
 from sim.highway import WorldFrame
-from sim.scene import vehicles_mesh
+from sim.scene import vehicle_triangles
 
 SUN_TOWARDS = np.array([0.45, 0.55, -0.7])  # [-] direction the sunlight travels (world)
 SUN_INTENSITY = 3.0  # [-] pyrender DirectionalLight intensity
@@ -108,18 +108,24 @@ class CodedScene:
         if self._node is not None:
             self.scene.remove_node(self._node)
             self._node = None
-        vehicles = (frame.ego, *frame.others)
-        mesh = vehicles_mesh(vehicles, mode="color")
-        if mesh is None:
-            self.rgb = self._static_rgb
-            self.ids = np.full(self.n_static, -1, np.int32)
+        corners, albedo, vid = vehicle_triangles((frame.ego, *frame.others))
+        n = len(corners)
+        self.rgb = self._static_rgb
+        self.ids = np.full(self.n_static, -1, np.int32)
+        if n == 0:
             return
-        self._node = self.scene.add(_coded_mesh(mesh, self.n_static))
-        c, nrm = _triangle_props(mesh)
-        per_vehicle = len(mesh.faces) // len(vehicles)
-        vid = np.repeat(np.array([v.id for v in vehicles], np.int32), per_vehicle)
-        self.rgb = np.concatenate([self._static_rgb, lit_colors(c, nrm)])
-        self.ids = np.concatenate([np.full(self.n_static, -1, np.int32), vid])
+        # one primitive straight from the arrays: each corner carries its triangle's code
+        codes = np.repeat(code_colors(self.n_static, n), 3, axis=0)
+        prim = pyrender.Primitive(
+            positions=corners.reshape(-1, 3).astype(np.float32),
+            color_0=codes,
+            mode=pyrender.constants.GLTF.TRIANGLES,
+        )
+        self._node = self.scene.add(pyrender.Mesh([prim]))
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        self.rgb = np.concatenate([self._static_rgb, lit_colors(albedo, normals)])
+        self.ids = np.concatenate([self.ids, vid.astype(np.int32)])
 
 
 @njit(parallel=True, cache=True)

@@ -16,6 +16,7 @@ Both draw the pixels of the car body under an omni mirror once, at the first fra
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -221,6 +222,7 @@ class PlaneFrameRenderer:
         self.sky = np.float32(255.0) * np.asarray(SKY_RGB, np.float32)
         self._objects: OmniRenderer | None = None
         self._ground: GroundRenderer | None = None
+        self._pool = ThreadPoolExecutor(max_workers=1)
         self.clock = StageClock()
 
     def settings(self) -> dict:
@@ -266,17 +268,23 @@ class PlaneFrameRenderer:
 
     def _render_with(self, r: OmniRenderer, frame, T_world_cam, plane) -> FrameImages:
         coded, clock = self.scenes, self.clock
-        coded.set_vehicles(frame)
-        clock.lap("vehicles")
-        atlas, depth = r.render_atlas(coded.scene, T_world_cam, flat=True, depth=True)
-        clock.lap("objects_gl")
         H, W = self.camera.height, self.camera.width
         behind = np.empty((H, W, 3), np.float32)
         behind[:] = self.sky
         range_m = np.full((H, W), np.inf, np.float32)
-        if plane is not None:
-            plane.render_into(T_world_cam, behind, range_m)
-        clock.lap("plane")
+        # the plane (a kernel that releases the GIL) is drawn while GL draws the objects
+        job = (
+            None
+            if plane is None
+            else self._pool.submit(plane.render_into, T_world_cam, behind, range_m)
+        )
+        coded.set_vehicles(frame)
+        clock.lap("vehicles")
+        atlas, depth = r.render_atlas(coded.scene, T_world_cam, flat=True, depth=True)
+        clock.lap("objects_gl")
+        if job is not None:
+            job.result()
+        clock.lap("plane_after_gl")
         # objects premultiplied by their coverage, so that their edges blend over the plane
         obj = r.remap_color(premultiplied_rgba(atlas, coded.rgb))
         objects_range = r.range_image(depth)
@@ -291,6 +299,7 @@ class PlaneFrameRenderer:
         if self._objects is not None:
             self._objects.close()
             self._objects = None
+        self._pool.shutdown()
 
 
 @njit(parallel=True, cache=True)

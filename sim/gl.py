@@ -1,6 +1,7 @@
 """Import pyrender with the OSMesa platform, in one place, with its fixes.
 
-- PYOPENGL_PLATFORM must be set before anything imports OpenGL (OSMesa: docs/INSTALL.md).
+- PYOPENGL_PLATFORM must be set before anything imports OpenGL: OSMesa by default; a value
+  already set is kept (``egl`` for a GPU: untested, docs/INSTALL.md).
 - pyrender 0.1.45 still uses ``np.infty`` (removed in NumPy 2) in ``Mesh.bounds``;
   the alias below keeps those code paths working.
 - pyrender caches compiled shader programs under a key that starts with

@@ -34,6 +34,7 @@ from estimator.camera.models import CameraModel
 
 PIXEL_SIGMA_PX = 0.5  # [px] std of a camera pixel's Gaussian response, 0.3..1
 MAX_PROBES = 8  # [-] most probes along a footprint's major axis, 1..32
+OUTSIDE_VIEW_PROBES = 2  # [-] most probes of pixels outside the valid view (shown only), 1..8
 FINE_CELL_M = 0.025  # [m] cell of the fine coverage raster, 0.01..0.05
 FINE_LEVELS = 4  # [-] mip levels of the fine raster (2.5, 5, 10, 20 cm), 1..6
 TILE_CELLS = 512  # [cells] side of a fine coverage tile (12.8 m at 2.5 cm), 64..2048
@@ -306,7 +307,10 @@ class GroundRenderer:
         near = pixels.reshape(-1) & (d[:, 2] < np.sin(np.radians(1.0)))
         idx = np.flatnonzero(near)
         w = np.stack([idx % W, idx // W], axis=1).astype(np.float64)
-        foot = _footprints(camera, w, R, o)
+        # pixels outside the valid view (the ring around the car body under an omni
+        # mirror) are shown but never measured: fewer probes, a blurrier road
+        cap = np.where(camera.valid_mask().reshape(-1)[idx], MAX_PROBES, OUTSIDE_VIEW_PROBES)
+        foot = _footprints(camera, w, R, o, cap)
         # pixels whose probes all read the fine coverage window come first
         top_fine = FINE_CELL_M * 2.0 ** (FINE_LEVELS - 1)
         fine = (foot.far_m < 0.8 * coverage.reach_m) & (2.0 * foot.blur_m <= top_fine)
@@ -424,7 +428,7 @@ def _trilinear_into(args, level, frac, x, y, weight, out):
         _bilinear_into(args[0], u, v, weight * frac, out)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _shade(
     rays, weight, starts, n_fine, R, o, asphalt, la, fa, grass, lg, fg, fine, coarse, lc, fc,
     k_road, k_grass, paint, sky, inv_gamma, max_range, pixel, centre, out_rgb, out_range,
@@ -487,8 +491,11 @@ class _Footprints:
     far_m: np.ndarray
 
 
-def _footprints(camera: CameraModel, w: np.ndarray, R: np.ndarray, o: np.ndarray) -> _Footprints:
-    """Footprints on the plane of the pixels w (N, 2) [px] seen from pose (R, o)."""
+def _footprints(
+    camera: CameraModel, w: np.ndarray, R: np.ndarray, o: np.ndarray, max_probes: np.ndarray
+) -> _Footprints:
+    """Footprints on the plane of the pixels w (N, 2) [px] seen from pose (R, o), with at
+    most max_probes (N,) probes each."""
 
     def plane_xy(wp: np.ndarray) -> np.ndarray:
         d = camera.unproject(wp) @ R.T
@@ -514,7 +521,7 @@ def _footprints(camera: CameraModel, w: np.ndarray, R: np.ndarray, o: np.ndarray
     spread = np.sqrt(np.maximum(major2 - minor2, 0.0))  # Gaussian the probes spread [m]
     minor = np.sqrt(minor2)
     # probes over +-2 spread, at most two blur std apart
-    n = np.clip(np.ceil(2.0 * spread / minor) + 1.0, 1, MAX_PROBES).astype(np.int64)
+    n = np.clip(np.ceil(2.0 * spread / minor) + 1.0, 1, max_probes).astype(np.int64)
     n[spread < 0.5 * minor] = 1
     blur = np.maximum(minor, 2.0 * spread / np.maximum(n - 1, 1))
     blur[n == 1] = np.sqrt(major2[n == 1])

@@ -798,6 +798,33 @@ def vehicles_mesh(vehicles: Sequence[VehicleState], mode: str = "color") -> trim
     return m
 
 
+def vehicle_triangles(
+    vehicles: Sequence[VehicleState],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every vehicle's triangles, as `vehicles_mesh` builds them, without a mesh object.
+
+    Returns (T, 3, 3) corners [m] (world), (T, 3) uint8 albedo of each triangle (its
+    colour in ``mode="color"``) and (T,) int64 vehicle id; each vehicle has the same
+    number of triangles, in the order of ``vehicles``.
+    """
+    tv, tf, tn, roles = _CAR
+    if len(vehicles) == 0:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)
+    arr = np.array(
+        [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
+        dtype=float,
+    )
+    scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
+    verts, faces, _ = _instances(tv, tf, tn, arr[:, :2], arr[:, 2], scale)
+    ids = arr[:, 6].astype(np.int64)
+    per = np.zeros((len(vehicles), len(tf), 3), np.uint8)
+    per[:] = np.stack([body_color(i) for i in ids])[:, None, :]
+    face_role = roles[tf[:, 0]]
+    for role, c in _ROLE_RGB.items():
+        per[:, face_role == role] = c
+    return verts[faces], per.reshape(-1, 3), np.repeat(ids, len(tf))
+
+
 def vehicle_corners_world(v: VehicleState) -> np.ndarray:
     """(8, 3) corners of the vehicle's bounding box in the world [m].
 

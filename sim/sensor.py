@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -60,8 +61,7 @@ def motion_blur(image: np.ndarray, displacements_px: Sequence[np.ndarray]) -> np
     """
     if not len(displacements_px):
         return image
-    H, W = image.shape[:2]
-    v, u = np.mgrid[0:H, 0:W].astype(np.float32)
+    u, v = _pixel_grid(*image.shape[:2])
     out = np.zeros(image.shape, np.float32)
     for d in displacements_px:
         d = np.asarray(d, np.float32)
@@ -70,7 +70,16 @@ def motion_blur(image: np.ndarray, displacements_px: Sequence[np.ndarray]) -> np
             continue
         d = cv2.remap(d, u - d[..., 0], v - d[..., 1], cv2.INTER_LINEAR, borderMode=_BORDER)
         out += cv2.remap(image, u - d[..., 0], v - d[..., 1], cv2.INTER_LINEAR, borderMode=_BORDER)
-    return out / len(displacements_px)
+    out *= np.float32(1.0 / len(displacements_px))
+    return out
+
+
+@lru_cache(maxsize=4)
+def _pixel_grid(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 column and row of every pixel (read only)."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float32)
+    u.flags.writeable = v.flags.writeable = False
+    return u, v
 
 
 def gaussian_noise(shape: tuple, std: float, seed: int) -> np.ndarray:
@@ -97,17 +106,19 @@ def apply_sensor(
     blur_px: the image motion at the exposure's sample times (`motion_blur`); None: none.
     """
     img = image.astype(np.float32)
-    if gain != 1.0:
-        img *= gain
     if vignette is not None and model.vignetting > 0:
-        img *= vignette[..., None]
+        img *= (np.float32(gain) * vignette.astype(np.float32))[..., None]
+    elif gain != 1.0:
+        img *= np.float32(gain)
     if model.motion_blur and blur_px is not None:
         img = motion_blur(img, blur_px)
     if model.noise_std > 0:
         img += gaussian_noise(img.shape, model.noise_std, int(rng.integers(0, 2**31 - 1)))
-    out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    np.rint(img, out=img)
+    np.clip(img, 0, 255, out=img)
+    out = img.astype(np.uint8)
     if mask is not None:
-        out[~mask] = 0
+        out *= mask.astype(np.uint8)[..., None]
     if model.jpeg_quality is not None:
         ok, buf = cv2.imencode(
             ".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, model.jpeg_quality]
