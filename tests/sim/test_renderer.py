@@ -46,9 +46,11 @@ def test_lookup_maps_every_valid_pixel_inside_a_face(preset):
     assert np.all(lk.cos_to_axis[v] >= 1 / np.sqrt(3) - 1e-6)
 
 
+@pytest.mark.parametrize("windowed", [False, True])
 @pytest.mark.parametrize("preset", ["omni-far", "rectilinear-rear-left"])
-def test_rendered_box_silhouette_matches_camera_model(preset):
-    """Id render vs analytic ray casting of the model's rays: mismatches only on edges."""
+def test_rendered_box_silhouette_matches_camera_model(preset, windowed):
+    """Id render vs analytic ray casting of the model's rays: mismatches only on edges,
+    also when only the windows of the faces that valid pixels see are rendered."""
     size = (160, 160) if "omni" in preset else (160, 120)
     cam, mount = resolve_camera({"preset": preset, "width": size[0], "height": size[1]})
     # camera 1.95 m above the origin with the nominal mount, box on the road nearby
@@ -57,11 +59,14 @@ def test_rendered_box_silhouette_matches_camera_model(preset):
     hi = lo + [4.0, 1.8, 1.5]
     scene = pyrender.Scene(bg_color=[0, 0, 0, 1], ambient_light=[1, 1, 1])
     scene.add(pyrender.Mesh.from_trimesh(_box_mesh((lo + hi) / 2, hi - lo, 7), smooth=False))
-    r = OmniRenderer(cam, face_px=256)
+    pixels = cam.valid_mask() if windowed else None
+    r = OmniRenderer(cam, face_px=256, pixels=pixels, windowed=windowed)
     try:
         atlas, depth = r.render_atlas(scene, T_world_cam, flat=True, depth=True)
         rgb = r.remap_nearest(atlas)
         rng = r.range_image(depth)
+        if windowed and "omni" in preset:  # the windows are smaller than the faces
+            assert r.lookup.window_px[1] < 0.6 * r.lookup.face_px
     finally:
         r.close()
     ids = rgb[..., 0].astype(int) + (rgb[..., 1].astype(int) << 8)

@@ -1,0 +1,73 @@
+"""The road plane drawn per pixel: exact range, exact shading of a flat albedo, a texture
+fixed to the world, the sky where the plane is not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimator.camera.files import resolve_camera
+from estimator.geometry import make_T
+from sim.ground import (
+    DISPLAY_GAMMA,
+    CoverageMap,
+    GroundLook,
+    GroundRenderer,
+    MipAtlas,
+    MipTexture,
+)
+
+SKY = np.array([158.0, 189.0, 230.0])
+
+
+def _setup(texture: np.ndarray, tile_m: float = 4.0, preset: str = "omni-near"):
+    cam, mount = resolve_camera({"preset": preset, "width": 160, "height": 160})
+    big = np.array([[-1e3, -1e3], [1e3, -1e3], [1e3, 1e3], [-1e3, 1e3]])  # road everywhere
+    coverage = CoverageMap([big], [], (-200.0, 200.0, -200.0, 200.0))
+    tex = MipTexture(texture, tile_m)
+    look = GroundLook(tex, tex, np.zeros(3), k_road=1.0, k_grass=1.0, k_marking=1.0)
+    T = make_T(mount.R_car_cam, mount.position_m)
+    return cam, GroundRenderer(cam, T, look, coverage, SKY), T
+
+
+def test_flat_albedo_is_shaded_exactly_and_the_range_is_the_rays():
+    albedo = 0.2
+    cam, ground, T = _setup(np.full((16, 16, 3), albedo, np.float32))
+    img = ground.render(T)
+    rays = cam.pixel_rays() @ T[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -T[2, 3] / rays[..., 2]
+    sure = img.hit & (rays[..., 2] < -0.1)  # the whole footprint on the plane
+    assert sure.sum() > 1000
+    np.testing.assert_allclose(img.rgb[sure], 255.0 * albedo ** (1 / DISPLAY_GAMMA), atol=1e-3)
+    np.testing.assert_allclose(img.range_m[sure], t[sure], rtol=1e-5)
+    above = cam.valid_mask() & (rays[..., 2] > 0.05)  # well above the horizon
+    assert above.sum() > 100
+    np.testing.assert_allclose(
+        img.rgb[above], np.broadcast_to(SKY, img.rgb[above].shape), atol=1e-3
+    )
+    assert np.all(np.isinf(img.range_m[above]))
+
+
+def test_the_texture_is_fixed_to_the_world():
+    """Moving the camera by one texture period along x draws the same image."""
+    rng = np.random.default_rng(0)
+    cam, ground, T = _setup(rng.uniform(0.05, 0.6, (64, 64, 3)).astype(np.float32), 4.0)
+    a = ground.render(T).rgb
+    T2 = T.copy()
+    T2[0, 3] += 4.0
+    b = ground.render(T2).rgb
+    assert np.abs(a - b).max() < 0.05  # [DN]
+    T3 = T.copy()
+    T3[0, 3] += 1.3  # not a period: another image
+    hit = ground.render(T).hit
+    assert np.abs(a - ground.render(T3).rgb)[hit].mean() > 1.0
+
+
+@pytest.mark.parametrize("blur", [0.01, 0.03, 0.1])
+def test_a_mip_level_is_twice_the_blur(blur):
+    atlas = MipAtlas([np.zeros((64, 64, 1), np.float32)] * 1, 0.01, periodic=False)
+    tex = MipTexture(np.zeros((64, 64, 3), np.uint8), 0.64)  # 1-cm texels, 7 levels
+    lo, frac = tex.levels(np.array([blur]))
+    assert lo[0] + frac[0] == pytest.approx(np.log2(2 * blur / 0.01))
+    assert atlas.n_levels == 1
