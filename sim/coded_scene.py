@@ -14,13 +14,15 @@ specular lobe (roughness 0.8) is left out.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import trimesh
 from numba import njit, prange
 
 from sim.gl import pyrender
 from sim.ground import DISPLAY_GAMMA
-from sim.highway import WorldFrame
+from sim.highway import VehicleState
 from sim.scene import vehicle_triangles
 
 SUN_TOWARDS = np.array([0.45, 0.55, -0.7])  # [-] direction the sunlight travels (world)
@@ -86,12 +88,21 @@ class CodedScene:
 
     def __init__(self, static_meshes: list[trimesh.Trimesh]) -> None:
         self.scene = pyrender.Scene(bg_color=[0, 0, 0, 1.0], ambient_light=[1.0, 1.0, 1.0])
+        self._static_nodes: list = []
+        self._node = None
+        self.set_static(static_meshes)
+
+    def set_static(self, static_meshes: list[trimesh.Trimesh]) -> None:
+        """Replace the static objects (and drop the vehicles until `set_vehicles`)."""
+        for node in self._static_nodes:
+            self.scene.remove_node(node)
+        self._static_nodes = []
         rgb, normals = [np.zeros((1, 3), np.uint8)], [np.zeros((1, 3))]
         n = 1
         for m in static_meshes:
             if m is None or not len(m.faces):
                 continue
-            self.scene.add(_coded_mesh(m, n))
+            self._static_nodes.append(self.scene.add(_coded_mesh(m, n)))
             c, nrm = _triangle_props(m)
             rgb.append(c)
             normals.append(nrm)
@@ -99,16 +110,14 @@ class CodedScene:
         self.n_static = n  # codes below are static (code 0: nothing)
         self._static_rgb = lit_colors(np.concatenate(rgb), np.concatenate(normals))
         self._static_rgb[0] = 0
-        self.rgb = self._static_rgb
-        self.ids = np.full(n, -1, np.int32)
-        self._node = None
+        self.set_vehicles(())
 
-    def set_vehicles(self, frame: WorldFrame) -> None:
-        """Put the frame's vehicles (the ego car included) in the scene and the tables."""
+    def set_vehicles(self, vehicles: Sequence[VehicleState]) -> None:
+        """Put the vehicles (the camera's own car included) in the scene and the tables."""
         if self._node is not None:
             self.scene.remove_node(self._node)
             self._node = None
-        corners, albedo, vid = vehicle_triangles((frame.ego, *frame.others))
+        corners, albedo, vid = vehicle_triangles(vehicles)
         n = len(corners)
         self.rgb = self._static_rgb
         self.ids = np.full(self.n_static, -1, np.int32)

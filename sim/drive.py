@@ -231,14 +231,15 @@ class DriveRenderer:
             )
             if self.renderer == "plane":
                 T_ref = self.poses[0].T_world_nominal
-                r = PlaneFrameRenderer(self.camera, static, area, T_ref, self.face_px)
+                r = PlaneFrameRenderer(self.camera, T_ref, self.face_px, True, static, area)
             else:
                 r = CubeFrameRenderer(self.camera, static, self.face_px)
             self._rays = self.camera.pixel_rays()
             self._mask = imaged_mask(self.camera)
             # the car body is drawn once, always at frame 0, whatever frame this render
             # starts at, so that a resumed render is byte-identical to an uninterrupted one
-            r.start(self.frames[0], self.poses[0].T_world_actual)
+            f0 = self.frames[0]
+            r.start((f0.ego, *f0.others), self.poses[0].T_world_actual)
             self._renderer = r
         return self._renderer
 
@@ -273,7 +274,8 @@ class DriveRenderer:
         renderer = self._open()
         clock = renderer.clock
         clock.start()
-        seen = renderer.render(self.frames[k], pose.T_world_actual)
+        frame = self.frames[k]
+        seen = renderer.render((frame.ego, *frame.others), pose.T_world_actual)
         image, ids, range_m = seen.image, seen.ids, seen.range_m
         blur = None
         if self.sensor.motion_blur and len(self.frames) > 1:

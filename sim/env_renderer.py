@@ -9,7 +9,8 @@
   one merged mesh (``sim.scene.vehicles_mesh``);
 - the camera on the observer by the camera's mount (``sim.camera_motion.camera_pose``),
   optionally vibrating;
-- ``sim.renderer.OmniRenderer`` renders the cube map and ray-maps it;
+- ``sim.frame_renderer.PlaneFrameRenderer`` draws the road plane per pixel and what
+  stands on it through cube faces, as for a rendered drive (`sim.drive`);
 - sensor effects (``sim.sensor``) after it. Motion blur uses the motion since the
   previous observation (the next one is not known online).
 
@@ -48,13 +49,7 @@ from estimator.camera.models import CameraModel, vignetting_gain
 from estimator.camera.mount import CameraMount
 from sim.camera_motion import CameraPose, T_world_car, Vibration, camera_pose
 from sim.drive import scene_flow_px
-from sim.frame_renderer import (
-    WorldScenes,
-    default_face_px,
-    imaged_mask,
-    static_pyrender_mesh,
-)
-from sim.gl import pyrender  # OSMesa platform and pyrender fixes (sim/gl.py)
+from sim.frame_renderer import PlaneFrameRenderer, imaged_mask, object_face_px
 from sim.highway import (
     EGO_HEIGHT_M,
     HEIGHT_RANGE_M,
@@ -65,8 +60,6 @@ from sim.highway import (
     world_yaw_from_hw_heading,
 )
 from sim.observation_config import OmniObservationConfig
-from sim.renderer import OmniRenderer
-from sim.scene import decode_id_image, id_occluder_mesh, vehicles_mesh
 from sim.sensor import SensorModel, apply_sensor, exposure_times
 from sim.tiles import TiledWorld
 
@@ -119,7 +112,7 @@ class OmniEnvRenderer:
         self.mount: CameraMount
         self.camera, self.mount = resolve_camera(config.camera_spec())
         self.shape = (self.camera.height, self.camera.width)  # (H, W) [px]
-        self.face_px = config.face_px or default_face_px(self.camera)  # [px]
+        self.face_px = config.face_px or object_face_px(self.camera)  # [px]
         self.mask = imaged_mask(self.camera)  # (H, W) bool: pixels with an image
         self.sensor = SensorModel(**config.sensor.model_dump())
         self.vignette = (
@@ -128,11 +121,7 @@ class OmniEnvRenderer:
             else None
         )
         self.world = TiledWorld(config.tile_m, config.view_range_m)
-        self._renderer: OmniRenderer | None = None
-        self._scenes: WorldScenes | None = None
-        self._static_nodes: list[tuple[pyrender.Scene, pyrender.Node]] = []
-        self._veh_nodes: dict[str, pyrender.Node] = {}
-        self._veh_key: tuple | None = None
+        self._renderer: PlaneFrameRenderer | None = None
         self._rays: np.ndarray | None = None
         self._episode: _Episode | None = None
         self._episode_count = 0
@@ -148,10 +137,6 @@ class OmniEnvRenderer:
         if self._renderer is not None:
             self._renderer.close()
         self._renderer = None
-        self._scenes = None
-        self._static_nodes = []
-        self._veh_nodes = {}
-        self._veh_key = None
         self._cache = None
         self.world.invalidate()
 
@@ -160,12 +145,15 @@ class OmniEnvRenderer:
         """Whether a GL context is held."""
         return self._renderer is not None
 
-    def _open(self, base: AbstractEnv) -> OmniRenderer:
+    def _open(self, base: AbstractEnv) -> PlaneFrameRenderer:
         if self._renderer is None:
-            # the cached car-body faces show the first observer's car: only one observer
+            # the car body drawn once shows the first observer's car: only one observer
             single = len(getattr(base, "controlled_vehicles", ()) or ()) <= 1
-            self._renderer = OmniRenderer(self.camera, self.face_px, cache_body_faces=single)
-            self._scenes = WorldScenes([], [])
+            T_ref = camera_pose(T_world_car(0.0, 0.0, 0.0), self.mount, None, 0.0)
+            self._renderer = PlaneFrameRenderer(
+                self.camera, T_ref.T_world_nominal, self.face_px, cache_body=single
+            )
+            self.world.invalidate()  # the new renderer needs the window's meshes
         return self._renderer
 
     # -- episodes --------------------------------------------------------------
@@ -191,19 +179,10 @@ class OmniEnvRenderer:
         fixed = self.config.world_seed
         world_words = (1, fixed) if fixed is not None else words
         self.world.reset(ep.geometry, world_words, (2, fixed if fixed is not None else 0))
-        self._drop_nodes()  # the scenes (and their cached faces) are kept
         self._episode = ep
         self._episode_count += 1
         self._cache = None
         return ep
-
-    def _drop_nodes(self) -> None:
-        if self._scenes is not None:
-            for scene, node in self._static_nodes:
-                scene.remove_node(node)
-            for mode, node in self._veh_nodes.items():
-                (self._scenes.color if mode == "color" else self._scenes.ids).remove_node(node)
-        self._static_nodes, self._veh_nodes, self._veh_key = [], {}, None
 
     def _vehicle_id(self, ep: _Episode, v: object) -> int:
         entry = ep.ids.get(id(v))
@@ -280,32 +259,8 @@ class OmniEnvRenderer:
 
     def _update_static(self, x: float, y: float) -> None:
         meshes = self.world.window_meshes(x, y)
-        if meshes is None:
-            return
-        for scene, node in self._static_nodes:
-            scene.remove_node(node)
-        self._static_nodes = []
-        sc = self._scenes
-        for m in meshes:
-            node = sc.color.add(static_pyrender_mesh(m))
-            self._static_nodes.append((sc.color, node))
-        occluder = id_occluder_mesh(meshes)
-        if occluder is not None:
-            node = sc.ids.add(pyrender.Mesh.from_trimesh(occluder, smooth=False))
-            self._static_nodes.append((sc.ids, node))
-
-    def _update_vehicles(self, key: tuple, states: list[VehicleState], want_ids: bool) -> None:
-        if key != self._veh_key:
-            for mode, node in self._veh_nodes.items():
-                (self._scenes.color if mode == "color" else self._scenes.ids).remove_node(node)
-            self._veh_nodes, self._veh_key = {}, key
-        modes = ("color", "id") if want_ids else ("color",)
-        for mode in modes:
-            if mode in self._veh_nodes:
-                continue
-            mesh = vehicles_mesh(states, mode=mode)
-            scene = self._scenes.color if mode == "color" else self._scenes.ids
-            self._veh_nodes[mode] = scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=False))
+        if meshes is not None:
+            self._renderer.set_static(meshes, self.world.window_area())
 
     def _observer_state(self, ep: _Episode, vid: int) -> _Observer:
         obs = ep.observers.get(vid)
@@ -352,22 +307,14 @@ class OmniEnvRenderer:
         ego, states = self._states(base, ep, observer)
         self._update_static(ego.x_m, ego.y_m)
         blur = self.sensor.motion_blur
-        need_ids = want_ids or blur
-        self._update_vehicles(key, states, need_ids)
         obs = self._observer_state(ep, ego.id)
         t_s = float(base.time)
         pose = camera_pose(
             T_world_car(ego.x_m, ego.y_m, ego.yaw_rad), self.mount, obs.vibration, t_s
         )
-        atlas, _ = renderer.render_atlas(self._scenes.color, pose.T_world_actual)
-        image = renderer.remap_color(atlas)
-        ids = depth = None
-        if need_ids:  # depth from the id scene (no depth offsets: `sim.drive.DriveRenderer`)
-            id_atlas, depth = renderer.render_atlas(
-                self._scenes.ids, pose.T_world_actual, flat=True, depth=blur
-            )
-            ids = decode_id_image(renderer.remap_nearest(id_atlas))
-            ids[~self.mask] = -1
+        seen = renderer.render(states, pose.T_world_actual)
+        image, ids = seen.image, seen.ids
+        ids[~self.mask] = -1
         blur_px = None
         xy_now = {s.id: np.array([s.x_m, s.y_m, 0.0]) for s in states}
         if blur and obs.prev_pose is not None and t_s > (obs.prev_time or 0.0):
@@ -384,7 +331,7 @@ class OmniEnvRenderer:
             full = scene_flow_px(
                 self.camera,
                 self._rays,
-                renderer.range_image(depth),
+                seen.range_m,
                 flow_ids,
                 pose,
                 obs.prev_pose,

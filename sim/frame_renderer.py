@@ -16,6 +16,7 @@ Both draw the pixels of the car body under an omni mirror once, at the first fra
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -28,7 +29,7 @@ from estimator.camera.models import CameraModel
 from sim.coded_scene import CodedScene, decode, premultiplied_rgba
 from sim.gl import pyrender, set_depth_offset
 from sim.ground import CoverageMap, GroundLook, GroundRenderer, MipTexture
-from sim.highway import WorldFrame
+from sim.highway import VehicleState
 from sim.renderer import OmniRenderer, finest_pixel_angle_rad
 from sim.scene import DEPTH_OFFSET, WHITE, decode_id_image, vehicles_mesh
 
@@ -115,11 +116,10 @@ class WorldScenes:
         self.color.add(sun, pose=_look_pose(d))
         self._veh_nodes: list = []
 
-    def set_vehicles(self, frame: WorldFrame) -> None:
+    def set_vehicles(self, vehicles: Sequence[VehicleState]) -> None:
         for scene, node in self._veh_nodes:
             scene.remove_node(node)
         self._veh_nodes = []
-        vehicles = (frame.ego, *frame.others)
         for scene, mode in ((self.color, "color"), (self.ids, "id")):
             mesh = vehicles_mesh(vehicles, mode=mode)
             if mesh is not None:
@@ -166,15 +166,15 @@ class CubeFrameRenderer:
     def settings(self) -> dict:
         return {"renderer": "cube", "face_px": self.face_px}
 
-    def start(self, frame: WorldFrame, T_world_cam: np.ndarray) -> None:
+    def start(self, vehicles: Sequence[VehicleState], T_world_cam: np.ndarray) -> None:
         """Render the faces that only show the car body, once, at this frame."""
-        self.scenes.set_vehicles(frame)
+        self.scenes.set_vehicles(vehicles)
         self._renderer.keep_body_faces(self.scenes.color, T_world_cam)
         self._renderer.keep_body_faces(self.scenes.ids, T_world_cam, flat=True)
 
-    def render(self, frame: WorldFrame, T_world_cam: np.ndarray) -> FrameImages:
+    def render(self, vehicles: Sequence[VehicleState], T_world_cam: np.ndarray) -> FrameImages:
         r, clock = self._renderer, self.clock
-        self.scenes.set_vehicles(frame)
+        self.scenes.set_vehicles(vehicles)
         clock.lap("vehicles")
         atlas, _ = r.render_atlas(self.scenes.color, T_world_cam)
         # depth from the id scene: the same surfaces, without the colour scene's depth
@@ -194,61 +194,84 @@ class CubeFrameRenderer:
 class PlaneFrameRenderer:
     """The road plane drawn analytically, what stands on it rasterised over it.
 
-    static_meshes: `sim.scene.build_static_scene`'s meshes; area_xy: the area they cover
-    (xmin, xmax, ymin, ymax) [m]; T_world_cam_ref: a nominal pose of the camera on its
-    car (its height and tilt above the plane set the pixels' footprints, `sim.ground`);
-    face_px: cube-face size of the objects' faces (default `object_face_px`).
+    T_world_cam_ref: a nominal pose of the camera on its car (its height and tilt above
+    the plane set the pixels' footprints, `sim.ground`); face_px: cube-face size of the
+    objects' faces (default `object_face_px`); cache_body: draw the car body's pixels
+    once (`start`), for a camera that stays on one car; static_meshes, area_xy: the
+    static world (`set_static`).
     """
 
     def __init__(
         self,
         camera: CameraModel,
-        static_meshes: list,
-        area_xy: tuple,
         T_world_cam_ref: np.ndarray,
         face_px: int | None = None,
+        cache_body: bool = True,
+        static_meshes: list | None = None,
+        area_xy: tuple | None = None,
     ) -> None:
         self.camera = camera
         self.face_px = face_px or object_face_px(camera)
-        by_name = {m.metadata.get("name"): m for m in static_meshes}
-        objects = [m for m in static_meshes if m.metadata.get("name") not in PLANE_MESHES]
-        self.scenes = CodedScene(objects)
-        self.look = plane_look(by_name)
-        self.coverage = CoverageMap(
-            _triangles_xy(by_name.get("road")), _triangles_xy(by_name.get("markings")), area_xy
-        )
+        self.cache_body = cache_body
+        self.scenes = CodedScene([])
+        self.look: GroundLook | None = None
+        self._look_key: tuple | None = None
+        self.coverage: CoverageMap | None = None
         self.T_ref = np.asarray(T_world_cam_ref, float)
         self.imaged = imaged_mask(camera)
         self.sky = np.float32(255.0) * np.asarray(SKY_RGB, np.float32)
+        self.body = np.zeros(self.imaged.shape, bool)
         self._objects: OmniRenderer | None = None
         self._ground: GroundRenderer | None = None
         self._pool = ThreadPoolExecutor(max_workers=1)
         self.clock = StageClock()
+        if static_meshes is not None:
+            self.set_static(static_meshes, area_xy)
 
     def settings(self) -> dict:
         return {"renderer": "plane", "face_px": self.face_px}
 
-    def start(self, frame: WorldFrame, T_world_cam: np.ndarray) -> None:
-        """Draw the car body's pixels once, at this frame: the pixels where the own car
-        (vehicle id 0) is seen, BODY_MARGIN_PX inside its outline, and those of the cube
-        faces that no valid pixel looks up (under an omni mirror: the face below, the roof
-        and a little road behind the car, as `CubeFrameRenderer` keeps them); then set up
-        the per-frame renderers for the other pixels."""
-        full = OmniRenderer(self.camera, self.face_px, cache_body_faces=False)
-        try:
-            seen = self._render_with(full, frame, T_world_cam, plane=None)
-        finally:
-            full.close()
-        own = seen.ids == 0
-        k = 2 * BODY_MARGIN_PX + 1
-        body = cv2.erode(own.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
-        for face in full.lookup.face_masks():
-            if not np.any(face & self.camera.valid_mask()):
-                body |= face
-        self.body = body & self.imaged
-        self.body_images = FrameImages(
-            seen.image[self.body], seen.ids[self.body], seen.range_m[self.body]
+    def set_static(self, static_meshes: list, area_xy: tuple) -> None:
+        """The static world: `sim.scene.build_static_scene`'s meshes (road, markings and
+        ground: the plane; the rest: objects) covering area_xy (xmin, xmax, ymin, ymax) [m]."""
+        by_name = {m.metadata.get("name"): m for m in static_meshes}
+        self.scenes.set_static(
+            [m for m in static_meshes if m.metadata.get("name") not in PLANE_MESHES]
         )
+        key = _texture_key(by_name)
+        if key != self._look_key:
+            self.look, self._look_key = plane_look(by_name), key
+        self.coverage = CoverageMap(
+            _triangles_xy(by_name.get("road")), _triangles_xy(by_name.get("markings")), area_xy
+        )
+        if self._ground is not None:
+            self._ground.set_plane(self.look, self.coverage)
+
+    def start(self, vehicles: Sequence[VehicleState], T_world_cam: np.ndarray) -> None:
+        """Set up the per-frame renderers. With ``cache_body``, draw the car body's pixels
+        once, at this frame: the pixels where the camera's own car (``is_ego``) is seen,
+        BODY_MARGIN_PX inside its outline, and those of the cube faces that no valid
+        pixel looks up (under an omni mirror: the face below, the roof and a little road
+        behind the car, as `CubeFrameRenderer` keeps them)."""
+        if self.coverage is None:
+            raise RuntimeError("PlaneFrameRenderer.set_static() first")
+        if self.cache_body:
+            full = OmniRenderer(self.camera, self.face_px, cache_body_faces=False)
+            try:
+                seen = self._render_with(full, vehicles, T_world_cam, plane=None)
+            finally:
+                full.close()
+            own_id = next(v.id for v in vehicles if v.is_ego)
+            k = 2 * BODY_MARGIN_PX + 1
+            own = (seen.ids == own_id).astype(np.uint8)
+            body = cv2.erode(own, np.ones((k, k), np.uint8)) > 0
+            for face in full.lookup.face_masks():
+                if not np.any(face & self.camera.valid_mask()):
+                    body |= face
+            self.body = body & self.imaged
+            self.body_images = FrameImages(
+                seen.image[self.body], seen.ids[self.body], seen.range_m[self.body]
+            )
         pixels = self.imaged & ~self.body
         self._objects = OmniRenderer(
             self.camera, self.face_px, pixels=pixels, windowed=True, cache_body_faces=False
@@ -257,16 +280,19 @@ class PlaneFrameRenderer:
             self.camera, self.T_ref, self.look, self.coverage, self.sky, pixels=pixels
         )
 
-    def render(self, frame: WorldFrame, T_world_cam: np.ndarray) -> FrameImages:
+    def render(self, vehicles: Sequence[VehicleState], T_world_cam: np.ndarray) -> FrameImages:
+        """What the camera at T_world_cam (4, 4) sees of the static world and of the
+        vehicles (the camera's own car among them, ``is_ego``)."""
         if self._objects is None:
-            self.start(frame, T_world_cam)
-        out = self._render_with(self._objects, frame, T_world_cam, plane=self._ground)
-        out.image[self.body] = self.body_images.image
-        out.ids[self.body] = self.body_images.ids
-        out.range_m[self.body] = self.body_images.range_m
+            self.start(vehicles, T_world_cam)
+        out = self._render_with(self._objects, vehicles, T_world_cam, plane=self._ground)
+        if self.cache_body:
+            out.image[self.body] = self.body_images.image
+            out.ids[self.body] = self.body_images.ids
+            out.range_m[self.body] = self.body_images.range_m
         return out
 
-    def _render_with(self, r: OmniRenderer, frame, T_world_cam, plane) -> FrameImages:
+    def _render_with(self, r: OmniRenderer, vehicles, T_world_cam, plane) -> FrameImages:
         coded, clock = self.scenes, self.clock
         H, W = self.camera.height, self.camera.width
         behind = np.empty((H, W, 3), np.float32)
@@ -278,7 +304,7 @@ class PlaneFrameRenderer:
             if plane is None
             else self._pool.submit(plane.render_into, T_world_cam, behind, range_m)
         )
-        coded.set_vehicles(frame)
+        coded.set_vehicles(vehicles)
         clock.lap("vehicles")
         atlas, depth = r.render_atlas(coded.scene, T_world_cam, flat=True, depth=True)
         clock.lap("objects_gl")
@@ -299,7 +325,16 @@ class PlaneFrameRenderer:
         if self._objects is not None:
             self._objects.close()
             self._objects = None
+        self._ground = None
         self._pool.shutdown()
+
+
+def _texture_key(by_name: dict) -> tuple:
+    """What identifies the plane's textures (the images' bytes)."""
+    return tuple(
+        hash(by_name[n].visual.material.image.tobytes()) if n in by_name else None
+        for n in ("road", "ground")
+    )
 
 
 @njit(parallel=True, cache=True)

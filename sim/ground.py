@@ -327,13 +327,18 @@ class GroundRenderer:
         self.probe_rays = np.nan_to_num(camera.unproject(w_probe))  # (P, 3)
         wt = np.exp(-0.5 * (4.0 * tau) ** 2)  # Gaussian over +-2 spread
         self.weight = wt / np.add.reduceat(wt, self.starts[:-1])[pix]  # (P,)
-        blur = foot.blur_m[sel]
-        nf = int(self.starts[self.n_fine_pixels])
+        self._blur = foot.blur_m[sel]  # (P,) [m]
+        self.centre_rays = rays[self.pixel]  # (N, 3)
+        self.set_plane(look, coverage)
+
+    def set_plane(self, look: GroundLook, coverage: CoverageMap) -> None:
+        """What the plane looks like and where its road is (the probes stay)."""
+        self.look, self.coverage = look, coverage
+        blur, nf = self._blur, int(self.starts[self.n_fine_pixels])
         self.lvl_asphalt = look.asphalt.levels(blur)
         self.lvl_grass = look.grass.levels(blur)
         fine_lv, coarse_lv = coverage.fine.levels(blur[:nf]), coverage.coarse.levels(blur[nf:])
         self.lvl_cover = tuple(np.concatenate(p) for p in zip(fine_lv, coarse_lv, strict=True))
-        self.centre_rays = rays[self.pixel]  # (N, 3)
 
     @property
     def probes(self) -> int:

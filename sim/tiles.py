@@ -214,6 +214,14 @@ class TiledWorld:
             self._tiles.move_to_end((ix, iy))
         return tile
 
+    def window_area(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) [m] of the window returned last by `window_meshes`."""
+        if self._window is None:
+            raise RuntimeError("no window yet: call window_meshes() first")
+        ix0, ix1, iy0, iy1 = self._window
+        t = self.tile_m
+        return (ix0 * t, (ix1 + 1) * t, iy0 * t, (iy1 + 1) * t)
+
     def window_meshes(self, x: float, y: float) -> list[trimesh.Trimesh] | None:
         """Merged meshes (road, markings, ground, roadside) of the window around (x, y)
         [m, world]; None if the window is the one returned last."""
