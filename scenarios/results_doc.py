@@ -128,25 +128,33 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
 
 
 def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
-    rows = []
+    rows, stages = [], []
     for path, b in benches:
-        what = b.get("bench") or path.stem
-        median = b.get("ms_per_frame")
-        p90 = b.get("p90_ms_per_frame")
-        fps = b.get("frames_per_s") or (1000.0 / median if median else None)
-        rows.append(
-            [
-                what,
-                _fmt(median, "{:.1f}"),
-                _fmt(p90, "{:.1f}"),
-                _fmt(fps, "{:.2f}"),
-                str(b.get("frames", "")),
-            ]
-        )
+        # `omnibench bench render` times several renderers in one run: a row each
+        runs = b.get("renderers") or {None: b}
+        for name, r in runs.items():
+            what = (b.get("bench") or path.stem) + (
+                f" ({name}, {r.get('face_px')}-px faces)" if name else ""
+            )
+            median = r.get("ms_per_frame")
+            p90 = r.get("p90_ms_per_frame", r.get("ms_p90"))
+            fps = r.get("frames_per_s") or (1000.0 / median if median else None)
+            rows.append(
+                [
+                    what,
+                    _fmt(median, "{:.1f}"),
+                    _fmt(p90, "{:.1f}"),
+                    _fmt(fps, "{:.2f}"),
+                    str(r.get("frames", "")),
+                ]
+            )
+            if r.get("stages_ms"):
+                parts = ", ".join(f"{k} {v:.0f}" for k, v in r["stages_ms"].items())
+                stages.append(f"- {what}: {parts} ms (medians by stage)")
     heads = ["benchmark", "median [ms/frame]", "p90 [ms/frame]", "frames/s", "frames timed"]
-    return ["## Speed", "", "On this machine, one `omnibench bench ... --json` each.", ""] + (
-        _table(heads, rows) + [""]
-    )
+    lines = ["## Speed", "", "On this machine, one `omnibench bench ... --json` each.", ""]
+    lines += _table(heads, rows) + [""]
+    return lines + (stages + [""] if stages else [])
 
 
 def results_markdown(
