@@ -412,6 +412,8 @@ def _check_render_settings(out_dir: Path, settings: dict, resuming: bool) -> Non
     path = out_dir / "render.json"
     if resuming:
         before = json.loads(path.read_text()) if path.exists() else None
+        if before is not None:  # written before there was a choice: the cube renderer
+            before.setdefault("renderer", "cube")
         if before != settings:
             raise DriveError(
                 f"{out_dir} holds frames rendered with {before or 'unrecorded settings'}, "
