@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -48,6 +50,7 @@ from sim.frame_renderer import (
     CubeFrameRenderer,
     FrameImages,
     PlaneFrameRenderer,
+    StageClock,
     default_face_px,
     imaged_mask,
     object_face_px,
@@ -270,12 +273,40 @@ class DriveRenderer:
 
     def produce(self, k: int) -> FrameImages:
         """Frame k with sensor effects; ``stage_seconds`` says where its time went."""
-        pose = self.poses[k]
+        return self._finish(k, *self._render(k))
+
+    def produce_many(self, ks: Iterable[int]) -> Iterator[tuple[int, FrameImages]]:
+        """(k, frame k) for each k in order, as `produce` makes them; the motion blur and
+        sensor effects of one frame run in a worker thread beside the rendering of the
+        next (the same images: each frame's randomness is seeded by its index)."""
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            pending = None
+            for k in ks:
+                try:
+                    rendered = self._render(k)
+                except BaseException:  # interrupted: the frame made before is not lost
+                    if pending is not None:
+                        yield pending[0], pending[1].result()
+                    raise
+                job = pool.submit(self._finish, k, *rendered)
+                if pending is not None:
+                    yield pending[0], pending[1].result()
+                pending = (k, job)
+            if pending is not None:
+                yield pending[0], pending[1].result()
+
+    def _render(self, k: int) -> tuple[FrameImages, dict[str, float]]:
+        """Frame k before sensor effects, and the seconds of its rendering stages."""
         renderer = self._open()
-        clock = renderer.clock
-        clock.start()
+        renderer.clock.start()
         frame = self.frames[k]
-        seen = renderer.render((frame.ego, *frame.others), pose.T_world_actual)
+        seen = renderer.render((frame.ego, *frame.others), self.poses[k].T_world_actual)
+        return seen, dict(renderer.clock.seconds)
+
+    def _finish(self, k: int, seen: FrameImages, stages: dict[str, float]) -> FrameImages:
+        """Frame k with motion blur and sensor effects on its rendered images."""
+        pose = self.poses[k]
+        clock = StageClock()
         image, ids, range_m = seen.image, seen.ids, seen.range_m
         blur = None
         if self.sensor.motion_blur and len(self.frames) > 1:
@@ -307,7 +338,7 @@ class DriveRenderer:
             mask=self._mask,
         )
         clock.lap("sensor")
-        self.stage_seconds = dict(clock.seconds)
+        self.stage_seconds = {**stages, **clock.seconds}
         return FrameImages(out, ids, range_m)
 
     def groundtruth(self, k: int, ids: np.ndarray) -> dict:
@@ -385,9 +416,9 @@ def render_drive(
     _check_render_settings(out_dir, drive.settings(), resuming=len(todo) < n)
     render_times: list[float] = []
     try:
-        for k in track(todo, len(todo), f"render {scenario.name}", progress):
-            t0 = time.perf_counter()
-            fr = drive.produce(k)
+        t0 = time.perf_counter()
+        frames = drive.produce_many(todo)
+        for k, fr in track(frames, len(todo), f"render {scenario.name}", progress):
             name = frame_name(k)
             io.write_png(out_dir / "frames" / f"{name}.png", fr.image)
             io.write_png(out_dir / "ids" / f"{name}.png", (fr.ids + 1).astype(np.uint16))
@@ -395,7 +426,8 @@ def render_drive(
             io.write_png(out_dir / "range" / f"{name}.png", rng_cm.astype(np.uint16))
             # written last: its presence marks the frame as done
             io.write_json(out_dir / "gt" / f"{name}.json", drive.groundtruth(k, fr.ids))
-            render_times.append(time.perf_counter() - t0)
+            render_times.append(time.perf_counter() - t0)  # between frames written
+            t0 = time.perf_counter()
     finally:
         drive.close()
     ms = 1000 * float(np.median(render_times)) if render_times else float("nan")

@@ -120,18 +120,18 @@ def test_rerun_resumes_and_reproduces(drive_dir, tmp_path):
 def test_interrupted_and_resumed_render_is_byte_identical(drive_dir, tmp_path, monkeypatch):
     """A render stopped after 3 of its 6 frames and resumed writes the very files of an
     uninterrupted one: frames (car-body disc included), ids and range."""
-    real = drive_mod.DriveRenderer.produce
+    real = drive_mod.DriveRenderer._render
 
     def stop_after_three(self, k):
         if k == 3:
             raise KeyboardInterrupt
         return real(self, k)
 
-    monkeypatch.setattr(drive_mod.DriveRenderer, "produce", stop_after_three)
+    monkeypatch.setattr(drive_mod.DriveRenderer, "_render", stop_after_three)
     with pytest.raises(KeyboardInterrupt):
         render_drive(tiny(), tmp_path, progress=False)
     assert len(list((tmp_path / "gt").glob("*.json"))) == 3
-    monkeypatch.setattr(drive_mod.DriveRenderer, "produce", real)
+    monkeypatch.setattr(drive_mod.DriveRenderer, "_render", real)
     assert render_drive(tiny(), tmp_path, progress=False).rendered == N - 3
     for folder in ("frames", "ids", "range", "gt"):
         names = sorted(p.name for p in (drive_dir / folder).iterdir())
@@ -161,7 +161,7 @@ def test_the_camera_file_records_the_sensor_vignetting(drive_dir, tmp_path):
 
 def test_interrupted_render_is_not_complete_and_resumes(tmp_path, monkeypatch):
     calls = {"n": 0}
-    real = drive_mod.DriveRenderer.produce
+    real = drive_mod.DriveRenderer._render
 
     def flaky(self, k):
         calls["n"] += 1
@@ -169,7 +169,7 @@ def test_interrupted_render_is_not_complete_and_resumes(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(self, k)
 
-    monkeypatch.setattr(drive_mod.DriveRenderer, "produce", flaky)
+    monkeypatch.setattr(drive_mod.DriveRenderer, "_render", flaky)
     sc = tiny(duration_s=4 / 15)
     with pytest.raises(KeyboardInterrupt):
         render_drive(sc, tmp_path, progress=False)
@@ -177,7 +177,7 @@ def test_interrupted_render_is_not_complete_and_resumes(tmp_path, monkeypatch):
     with pytest.raises(DriveError, match="not a complete drive"):
         load_groundtruth(tmp_path)
     assert len(list((tmp_path / "gt").glob("*.json"))) == 2
-    monkeypatch.setattr(drive_mod.DriveRenderer, "produce", real)
+    monkeypatch.setattr(drive_mod.DriveRenderer, "_render", real)
     res = render_drive(sc, tmp_path, progress=False)
     assert res.rendered == 2 and len(load_groundtruth(tmp_path)) == 4
 
