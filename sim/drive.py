@@ -214,7 +214,7 @@ class DriveRenderer:
         self.gains = gain_sequence(
             n, self.sensor.gain_drift, np.random.default_rng([scenario.seed, 3])
         )
-        self.vignette = camera.vignetting_gain()
+        self.vignette = camera.vignetting_gain().astype(np.float32)  # (H, W)
         self.road = road
         self.renderer = renderer
         if face_px is None:

@@ -116,7 +116,7 @@ class OmniEnvRenderer:
         self.mask = imaged_mask(self.camera)  # (H, W) bool: pixels with an image
         self.sensor = SensorModel(**config.sensor.model_dump())
         self.vignette = (
-            vignetting_gain(self.shape, self.sensor.vignetting)
+            vignetting_gain(self.shape, self.sensor.vignetting).astype(np.float32)
             if self.sensor.vignetting > 0
             else None
         )

@@ -22,16 +22,22 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import trimesh
 from numba import njit, prange
 
 from estimator.camera.models import CameraModel
-from sim.coded_scene import CodedScene, decode, premultiplied_rgba
+from sim.coded_scene import (
+    AMBIENT,
+    SUN_INTENSITY,
+    SUN_TOWARDS,
+    CodedScene,
+    decode,
+    premultiplied_rgba,
+)
 from sim.gl import pyrender, set_depth_offset
 from sim.ground import CoverageMap, GroundLook, GroundRenderer, MipTexture
 from sim.highway import VehicleState
 from sim.renderer import OmniRenderer, finest_pixel_angle_rad
-from sim.scene import DEPTH_OFFSET, WHITE, decode_id_image, vehicles_mesh
+from sim.scene import DEPTH_OFFSET, WHITE, decode_id_image, id_occluder_mesh, vehicles_mesh
 
 SKY_RGB = (0.62, 0.74, 0.90)
 RENDERERS = ("plane", "cube")  # `PlaneFrameRenderer`, `CubeFrameRenderer`
@@ -104,16 +110,14 @@ class WorldScenes:
     """pyrender colour and id scenes of one drive: static world + per-frame vehicles."""
 
     def __init__(self, static_meshes: list, id_static: list) -> None:
-        self.color = pyrender.Scene(bg_color=[*SKY_RGB, 1.0], ambient_light=[0.35, 0.35, 0.35])
+        self.color = pyrender.Scene(bg_color=[*SKY_RGB, 1.0], ambient_light=[AMBIENT] * 3)
         self.ids = pyrender.Scene(bg_color=[0, 0, 0, 1.0], ambient_light=[1.0, 1.0, 1.0])
         for m in static_meshes:
             self.color.add(static_pyrender_mesh(m))
         for m in id_static:
             self.ids.add(pyrender.Mesh.from_trimesh(m, smooth=False))
-        sun = pyrender.DirectionalLight(color=np.ones(3), intensity=3.0)
-        # sun from the south-west, 50 degrees up
-        d = np.array([0.45, 0.55, -0.7])
-        self.color.add(sun, pose=_look_pose(d))
+        sun = pyrender.DirectionalLight(color=np.ones(3), intensity=SUN_INTENSITY)
+        self.color.add(sun, pose=_look_pose(SUN_TOWARDS))
         self._veh_nodes: list = []
 
     def set_vehicles(self, vehicles: Sequence[VehicleState]) -> None:
@@ -138,14 +142,6 @@ def _look_pose(direction: np.ndarray) -> np.ndarray:
     return T
 
 
-def black_copy(mesh):
-    m = trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
-    m.visual = trimesh.visual.ColorVisuals(
-        m, vertex_colors=np.tile([0, 0, 0, 255], (len(m.vertices), 1))
-    )
-    return m
-
-
 def object_face_px(camera: CameraModel) -> int:
     """Cube-face size [px] (a multiple of 8, 64..MAX_FACE_PX) whose texels at the face
     centre are OBJECT_OVERSAMPLING times finer than the camera's finest pixels."""
@@ -159,7 +155,8 @@ class CubeFrameRenderer:
     def __init__(self, camera: CameraModel, static_meshes: list, face_px: int | None = None):
         self.camera = camera
         self.face_px = face_px or default_face_px(camera)
-        self.scenes = WorldScenes(static_meshes, [black_copy(m) for m in static_meshes])
+        occluder = id_occluder_mesh(static_meshes)
+        self.scenes = WorldScenes(static_meshes, [] if occluder is None else [occluder])
         self._renderer = OmniRenderer(camera, self.face_px)
         self.clock = StageClock()
 

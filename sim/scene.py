@@ -760,6 +760,33 @@ def decode_id_image(rgb: np.ndarray) -> np.ndarray:
     return v - 1
 
 
+def _posed_cars(
+    vehicles: Sequence[VehicleState],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The car template scaled to each vehicle's length/width/height and posed by (x, y,
+    yaw), in one numpy operation: (M*V, 3) vertices, (M*F, 3) faces, (M*V, 3) normals
+    and (M,) int64 ids of the M vehicles."""
+    tv, tf, tn, _ = _CAR
+    arr = np.array(
+        [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
+        dtype=float,
+    )
+    scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
+    verts, faces, norms = _instances(tv, tf, tn, arr[:, :2], arr[:, 2], scale)
+    return verts, faces, norms, arr[:, 6].astype(np.int64)
+
+
+def _role_colors(ids: np.ndarray, roles: np.ndarray) -> np.ndarray:
+    """(M * len(roles), 3) uint8 colours of the template's parts (roles: one per vertex or
+    per face) for vehicles ids (M,): the body colour of the id, dark glass and tyres,
+    lights."""
+    per = np.zeros((len(ids), len(roles), 3), np.uint8)
+    per[:] = np.stack([body_color(i) for i in ids])[:, None, :]
+    for role, c in _ROLE_RGB.items():
+        per[:, roles == role] = c
+    return per.reshape(-1, 3)
+
+
 def vehicles_mesh(vehicles: Sequence[VehicleState], mode: str = "color") -> trimesh.Trimesh | None:
     """ALL vehicles as ONE mesh (None if there are none).
 
@@ -772,23 +799,10 @@ def vehicles_mesh(vehicles: Sequence[VehicleState], mode: str = "color") -> trim
         raise ValueError(f"mode must be one of {VEHICLE_MODES}, got {mode!r}")
     if len(vehicles) == 0:
         return None
-    tv, tf, tn, roles = _CAR
-    arr = np.array(
-        [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
-        dtype=float,
-    )
-    scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
-    verts, faces, norms = _instances(tv, tf, tn, arr[:, :2], arr[:, 2], scale)
-    ids = arr[:, 6].astype(np.int64)
-    nv = len(tv)
-    if mode == "id":
-        rgb = np.repeat(id_color(ids), nv, axis=0)
-    else:
-        per = np.zeros((len(vehicles), nv, 3), np.uint8)
-        per[:] = np.stack([body_color(i) for i in ids])[:, None, :]
-        for role, c in _ROLE_RGB.items():
-            per[:, roles == role] = c
-        rgb = per.reshape(-1, 3)
+    roles = _CAR[3]
+    verts, faces, norms, ids = _posed_cars(vehicles)
+    nv = len(roles)
+    rgb = np.repeat(id_color(ids), nv, axis=0) if mode == "id" else _role_colors(ids, roles)
     rgba = np.column_stack([rgb, np.full(len(rgb), 255, np.uint8)])
     m = trimesh.Trimesh(
         vertices=verts, faces=faces, vertex_normals=norms, vertex_colors=rgba, process=False
@@ -807,22 +821,12 @@ def vehicle_triangles(
     colour in ``mode="color"``) and (T,) int64 vehicle id; each vehicle has the same
     number of triangles, in the order of ``vehicles``.
     """
-    tv, tf, tn, roles = _CAR
     if len(vehicles) == 0:
         return np.zeros((0, 3, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)
-    arr = np.array(
-        [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
-        dtype=float,
-    )
-    scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
-    verts, faces, _ = _instances(tv, tf, tn, arr[:, :2], arr[:, 2], scale)
-    ids = arr[:, 6].astype(np.int64)
-    per = np.zeros((len(vehicles), len(tf), 3), np.uint8)
-    per[:] = np.stack([body_color(i) for i in ids])[:, None, :]
-    face_role = roles[tf[:, 0]]
-    for role, c in _ROLE_RGB.items():
-        per[:, face_role == role] = c
-    return verts[faces], per.reshape(-1, 3), np.repeat(ids, len(tf))
+    tf, roles = _CAR[1], _CAR[3]
+    verts, faces, _, ids = _posed_cars(vehicles)
+    albedo = _role_colors(ids, roles[tf[:, 0]])  # a face's role: its first vertex's
+    return verts[faces], albedo, np.repeat(ids, len(tf))
 
 
 def vehicle_corners_world(v: VehicleState) -> np.ndarray:

@@ -107,7 +107,7 @@ def apply_sensor(
     """
     img = image.astype(np.float32)
     if vignette is not None and model.vignetting > 0:
-        img *= (np.float32(gain) * vignette.astype(np.float32))[..., None]
+        img *= (np.float32(gain) * np.asarray(vignette, np.float32))[..., None]
     elif gain != 1.0:
         img *= np.float32(gain)
     if model.motion_blur and blur_px is not None:
