@@ -10,7 +10,12 @@ the pixel's own footprint there:
   ray-plane map, an ellipse on the plane [m] (`_footprints`).
 - As GPUs filter anisotropically, the ellipse is covered by up to `MAX_PROBES` probes
   along its major axis, Gaussian weighted; each probe reads mip levels as wide as the
-  minor axis (trilinear: two levels, blended).
+  minor axis (trilinear: two levels, blended). Where the footprint is longer than
+  MAX_PROBES probes cover at that width (nearly all of an omni camera's road), the
+  textures (asphalt, grass) are read wider, as wide as the probes' spacing, so that
+  their fine grain does not alias; the coverage (where markings and the road's edge
+  are: a few hard edges, not a grain) is always read at the minor axis, so that a
+  marking keeps its sharp edges across the line of sight (docs/DESIGN.md).
 - Textures (asphalt, grass) are periodic tiles in world metres (`MipTexture`). Where
   the road and its markings are is a world raster of coverage (`CoverageMap`): a fine
   window of tiles around the camera and a coarse map of the whole area, with mips.
@@ -328,6 +333,7 @@ class GroundRenderer:
         wt = np.exp(-0.5 * (4.0 * tau) ** 2)  # Gaussian over +-2 spread
         self.weight = wt / np.add.reduceat(wt, self.starts[:-1])[pix]  # (P,)
         self._blur = foot.blur_m[sel]  # (P,) [m]
+        self._minor = foot.minor_m[sel]  # (P,) [m]
         self.centre_rays = rays[self.pixel]  # (N, 3)
         self.set_plane(look, coverage)
 
@@ -337,7 +343,9 @@ class GroundRenderer:
         blur, nf = self._blur, int(self.starts[self.n_fine_pixels])
         self.lvl_asphalt = look.asphalt.levels(blur)
         self.lvl_grass = look.grass.levels(blur)
-        fine_lv, coarse_lv = coverage.fine.levels(blur[:nf]), coverage.coarse.levels(blur[nf:])
+        # the coverage (painted edges) at the footprint's minor axis: see the module's doc
+        sharp = self._minor
+        fine_lv, coarse_lv = coverage.fine.levels(sharp[:nf]), coverage.coarse.levels(sharp[nf:])
         self.lvl_cover = tuple(np.concatenate(p) for p in zip(fine_lv, coarse_lv, strict=True))
 
     @property
@@ -486,14 +494,15 @@ def _shade(
 @dataclass
 class _Footprints:
     """Per pixel (N,): probe count n, image extent of the probes (N, 2) [px] (from the
-    first to the last), spread along the major axis [m], each probe's blur [m] and the
-    farthest reach of the footprint from the camera [m]."""
+    first to the last), spread along the major axis [m], each probe's blur [m], the
+    farthest reach of the footprint from the camera [m] and its minor-axis std [m]."""
 
     n: np.ndarray
     extent_px: np.ndarray
     spread_m: np.ndarray
     blur_m: np.ndarray
     far_m: np.ndarray
+    minor_m: np.ndarray
 
 
 def _footprints(
@@ -537,4 +546,4 @@ def _footprints(
     xy = plane_xy(w)
     far = np.hypot(xy[:, 0], xy[:, 1]) + 2.0 * spread
     far = np.where(np.isfinite(far), far, np.inf)
-    return _Footprints(n, extent, spread, blur, far)
+    return _Footprints(n, extent, spread, blur, far, minor)
