@@ -63,16 +63,58 @@ class MetricsConfig:
             )
 
 
+EGO_MOVING_MPS = 0.5  # [m/s] the ego car moves above this ground speed
+STATIONARY_MPS = 0.5  # [m/s] a vehicle slower than this over the ground is stationary
+CO_MOVING_MPS = 1.0  # [m/s] a vehicle within this of the ego car's velocity is co-moving
+MOTION_CLASSES = ("co-moving", "overtaking", "overtaken", "oncoming", "crossing", "stationary")
+RANGE_BANDS_M = (0.0, 5.0, 10.0, 15.0, 25.0)  # [m] edges of the range bands of `breakdown`
+SECTORS_DEG = {"front": (-45.0, 45.0), "left": (45.0, 135.0), "right": (-135.0, -45.0)}
+# (the rear sector is every bearing outside these: |bearing| >= 135 deg)
+
+
+def motion_class(speed_mps: float, yaw_rad: float, ego_speed_mps: float, ego_yaw_rad: float) -> str:
+    """A vehicle's motion relative to the ego car, both given by ground speed [m/s] and
+    heading [rad] in one world frame: "stationary" (slower than STATIONARY_MPS), else
+    "co-moving" (velocity within CO_MOVING_MPS of the ego car's), else by heading
+    relative to the ego car's: "oncoming" (beyond 135 deg), "crossing" (45-135 deg),
+    else "overtaking" (faster along the ego car's heading) or "overtaken"."""
+    if speed_mps < STATIONARY_MPS:
+        return "stationary"
+    v = speed_mps * np.array([math.cos(yaw_rad), math.sin(yaw_rad)])
+    ego = ego_speed_mps * np.array([math.cos(ego_yaw_rad), math.sin(ego_yaw_rad)])
+    if np.linalg.norm(v - ego) <= CO_MOVING_MPS:
+        return "co-moving"
+    rel = abs(
+        math.degrees(math.atan2(math.sin(yaw_rad - ego_yaw_rad), math.cos(yaw_rad - ego_yaw_rad)))
+    )
+    if rel > 135.0:
+        return "oncoming"
+    if rel > 45.0:
+        return "crossing"
+    along = speed_mps * math.cos(yaw_rad - ego_yaw_rad)
+    return "overtaking" if along > ego_speed_mps else "overtaken"
+
+
+def sector(bearing_deg: float) -> str:
+    """ "front", "left", "rear" or "right" of a bearing [deg] (0 ahead, +90 left)."""
+    for name, (lo, hi) in SECTORS_DEG.items():
+        if lo <= bearing_deg < hi:
+            return name
+    return "rear"
+
+
 # ------------------------------------------------------------------ inputs
 @dataclass(frozen=True)
 class GtVehicle:
-    """A ground-truth vehicle: id and footprint (4, 2) [m] in the ego road frame.
+    """A ground-truth vehicle: id and footprint (4, 2) [m] in the ego road frame, and its
+    motion relative to the ego car (one of `MOTION_CLASSES`, "" if unknown).
 
     The corners go around a convex polygon (either direction).
     """
 
     id: int
     footprint_xy: np.ndarray
+    motion: str = ""
 
     def __post_init__(self) -> None:
         fp = np.asarray(self.footprint_xy, dtype=float)
@@ -99,11 +141,13 @@ class GtVehicle:
 
 @dataclass
 class EvalFrame:
-    """One frame: ground truth (evaluation set) and hypotheses (id, x [m], y [m])."""
+    """One frame: ground truth (evaluation set), hypotheses (id, x [m], y [m]) and whether
+    the ego car moves (`EGO_MOVING_MPS`)."""
 
     gt: Sequence[GtVehicle]
     hypotheses: Sequence[tuple[int, float, float]] = ()
     t_s: float = NAN
+    ego_moving: bool = True
     hyp_ids: np.ndarray = field(init=False, repr=False)
     hyp_xy: np.ndarray = field(init=False, repr=False)
 
@@ -306,6 +350,115 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
         },
         "localization": {"median_error_m": median_err, "p90_error_m": p90_err},
         "nan_reasons": reasons,
+    }
+
+
+# ------------------------------------------------------------------ where detection fails
+def _band(r_m: float, edges: Sequence[float]) -> str | None:
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        if lo <= r_m < hi:
+            return f"{lo:g}-{hi:g} m"
+    return None
+
+
+def _ratio(num: int, den: int) -> float:
+    return float(num / den) if den else NAN
+
+
+def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
+    """Where detection fails: recall and precision by range band (`RANGE_BANDS_M`) and by
+    bearing sector (`SECTORS_DEG`), recall by the vehicles' motion (`MOTION_CLASSES`;
+    a hypothesis has no motion, so no precision there), and every metric of `evaluate`
+    over the frames where the ego car moves and over those where it is stopped.
+
+    A vehicle is placed by its footprint point nearest the camera, a hypothesis by its
+    own point; a matched pair counts in the vehicle's bin for recall and in the
+    hypothesis' bin for precision (the same bin but at a bin's edge). NaN: an empty bin.
+    """
+    cfg = config if config is not None else MetricsConfig()
+    frames = list(frames)
+    _, matches = _match_all(frames, cfg)
+    gt_hit = {(k, r) for k, r, _ in matches}
+    hyp_hit = {(k, c) for k, _, c in matches}
+    cam = np.asarray(cfg.camera_xy, float)
+
+    def where(p: np.ndarray) -> tuple[str | None, str]:
+        d = p - cam
+        return _band(float(np.hypot(*d)), RANGE_BANDS_M), sector(
+            math.degrees(math.atan2(d[1], d[0]))
+        )
+
+    edges = RANGE_BANDS_M
+    names = [f"{lo:g}-{hi:g} m" for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
+    zero = {"gt_count": 0, "matched": 0, "hyp_count": 0, "hyp_matched": 0}
+    bands = {n: dict(zero) for n in names}
+    sectors = {n: dict(zero) for n in (*SECTORS_DEG, "rear")}
+    motion = {n: {"gt_count": 0, "matched": 0} for n in (*MOTION_CLASSES, "unknown")}
+    for k, f in enumerate(frames):
+        for r, g in enumerate(f.gt):
+            band, sec = where(nearest_footprint_point(g.footprint_xy, cfg.camera_xy))
+            hit = (k, r) in gt_hit
+            for slot in ((bands.get(band) if band else None), sectors[sec]):
+                if slot is not None:
+                    slot["gt_count"] += 1
+                    slot["matched"] += hit
+            m = motion[g.motion or "unknown"]
+            m["gt_count"] += 1
+            m["matched"] += hit
+        for c, p in enumerate(f.hyp_xy):
+            band, sec = where(p)
+            hit = (k, c) in hyp_hit
+            for slot in ((bands.get(band) if band else None), sectors[sec]):
+                if slot is not None:
+                    slot["hyp_count"] += 1
+                    slot["hyp_matched"] += hit
+    for slot in (*bands.values(), *sectors.values()):
+        slot["recall"] = _ratio(slot["matched"], slot["gt_count"])
+        slot["precision"] = _ratio(slot["hyp_matched"], slot["hyp_count"])
+    for slot in motion.values():
+        slot["recall"] = _ratio(slot["matched"], slot["gt_count"])
+    if motion["unknown"]["gt_count"] == 0:
+        del motion["unknown"]
+    ego = {}
+    for state, moving in (("moving", True), ("stopped", False)):
+        sub = [f for f in frames if f.ego_moving == moving]
+        m = evaluate(sub, cfg)
+        ego[state] = {
+            "frames": len(sub),
+            **{key: m[key] for key in ("detection", "tracking", "localization")},
+        }
+    return {"range_bands": bands, "sectors": sectors, "motion": motion, "ego_state": ego}
+
+
+def recall_polar(
+    frames: Sequence[EvalFrame],
+    range_edges_m: Sequence[float],
+    bearing_edges_deg: Sequence[float],
+    config: MetricsConfig | None = None,
+) -> dict:
+    """Recall on a polar grid around the camera: {"range_edges_m", "bearing_edges_deg",
+    "gt_count" (R, B), "matched" (R, B)} as lists; vehicles placed by their footprint
+    point nearest the camera, bearing 0 ahead, +90 left."""
+    cfg = config if config is not None else MetricsConfig()
+    frames = list(frames)
+    _, matches = _match_all(frames, cfg)
+    hit = {(k, r) for k, r, _ in matches}
+    rs, bs, found = [], [], []
+    for k, f in enumerate(frames):
+        for r, g in enumerate(f.gt):
+            d = nearest_footprint_point(g.footprint_xy, cfg.camera_xy) - cfg.camera_xy
+            rs.append(float(np.hypot(*d)))
+            bs.append(math.degrees(math.atan2(d[1], d[0])))
+            found.append((k, r) in hit)
+    edges = (np.asarray(range_edges_m, float), np.asarray(bearing_edges_deg, float))
+    rs_a, bs_a, found_a = np.asarray(rs), np.asarray(bs), np.asarray(found, bool)
+    gt_n = np.histogram2d(rs_a, bs_a, edges)[0]
+    hit_n = np.histogram2d(rs_a[found_a], bs_a[found_a], edges)[0]
+    return {
+        "range_edges_m": edges[0].tolist(),
+        "bearing_edges_deg": edges[1].tolist(),
+        "gt_count": gt_n.astype(int).tolist(),
+        "matched": hit_n.astype(int).tolist(),
     }
 
 

@@ -32,6 +32,50 @@ def _table(section: dict) -> str:
     return f"<table>{rows}</table>"
 
 
+def _rows_table(rows: dict, columns: tuple[str, ...]) -> str:
+    """A table with a row per key of rows ({name: {column: value}})."""
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in ("", *columns))
+    body = "".join(
+        f"<tr><th>{html.escape(name)}</th>"
+        + "".join(f"<td>{_fmt(row.get(c, ''))}</td>" for c in columns)
+        + "</tr>"
+        for name, row in rows.items()
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _surround_section(surround: dict) -> str:
+    """Where the tracks fail (`scenarios.detection_metrics.breakdown`): by range band,
+    bearing sector, the vehicles' motion and the ego car's state."""
+    b = surround.get("tracks", {})
+    parts = [
+        f"<div class=sec><h2>surround: where the tracks find vehicles</h2>"
+        f"<p>{_fmt(surround.get('gt_vehicles'))} distinct vehicles in the evaluation set</p>"
+    ]
+    cols = ("recall", "precision", "gt_count", "matched", "hyp_count")
+    for key, caption in (("range_bands", "by range"), ("sectors", "by bearing")):
+        if key in b:
+            parts.append(f"<h3>{caption}</h3>{_rows_table(b[key], cols)}")
+    if "motion" in b:
+        parts.append(
+            "<h3>by motion relative to the ego car</h3>"
+            + _rows_table(b["motion"], ("recall", "gt_count", "matched"))
+        )
+    if "ego_state" in b:
+        rows = {
+            state: {
+                "frames": v["frames"],
+                **v["detection"],
+                **{k: v["tracking"][k] for k in ("mota", "idf1", "hota")},
+                "median_error_m": v["localization"]["median_error_m"],
+            }
+            for state, v in b["ego_state"].items()
+        }
+        cols = ("frames", "recall", "precision", "mota", "idf1", "hota", "median_error_m")
+        parts.append(f"<h3>by the ego car's state</h3>{_rows_table(rows, cols)}")
+    return "".join(parts) + "</div>"
+
+
 def write_run_report(out_dir: Path, metrics: dict) -> Path:
     """``out_dir/report.html`` for the run whose metrics.json content is ``metrics``."""
     out_dir = Path(out_dir)
@@ -53,10 +97,13 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
     ):
         if isinstance(metrics.get(name), dict):
             parts.append(f"<div class=sec><h2>{name}</h2>{_table(metrics[name])}</div>")
+    if isinstance(metrics.get("surround"), dict):
+        parts.append(_surround_section(metrics["surround"]))
     for img, caption in (
         ("surround.png", "side-by-side panels (paper Fig. 4)"),
         ("ego_error.png", "ego-motion against ground truth and the CAN prior"),
         ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
+        ("recall_polar.png", "track recall around the car, by range and bearing"),
         ("pull.png", "where the images pull the estimate off the truth (point_pull)"),
     ):
         if (out_dir / img).exists():

@@ -30,7 +30,16 @@ from estimator.surround.analyzer import SurroundAnalyzer
 from estimator.surround.detection import DetectorConfig
 from scenarios import visualize as viz
 from scenarios.config import Scenario
-from scenarios.detection_metrics import EvalFrame, GtVehicle, MetricsConfig, evaluate
+from scenarios.detection_metrics import (
+    EGO_MOVING_MPS,
+    EvalFrame,
+    GtVehicle,
+    MetricsConfig,
+    breakdown,
+    evaluate,
+    motion_class,
+    recall_polar,
+)
 from scenarios.metrics import (
     ego_consistency,
     ego_metrics,
@@ -45,6 +54,8 @@ from sim.drive import load_groundtruth, render_drive
 
 VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
 GATE_M = 1.5  # a detection matches a vehicle within this distance of its footprint [m]
+POLAR_RING_M = 5.0  # [m] width of the rings of recall_polar.png
+POLAR_SECTOR_DEG = 30.0  # [deg] sectors of recall_polar.png
 
 
 def ego_road_frame(gt_frame: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +67,10 @@ def ego_road_frame(gt_frame: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicle], np.ndarray]:
     """Vehicles visible (>= VISIBLE_PX_MIN px) within max_range_m, as footprints in the
-    ego road frame; also (N, 2) all their footprint centres (for drawing)."""
+    ego road frame with their motion relative to the ego car (`motion_class`); also
+    (N, 2) all their footprint centres (for drawing)."""
     R, o = ego_road_frame(gt_frame)
+    ego = gt_frame["ego"]
     out, centres = [], []
     for v in gt_frame["vehicles"]:
         box = np.asarray(v["box_world_m"])[:4, :2]  # bottom corners (sim.scene convention)
@@ -67,7 +80,8 @@ def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicl
             continue
         if _polygon_distance(np.zeros(2), foot) > max_range_m:
             continue
-        out.append(GtVehicle(int(v["id"]), _convex_order(foot)))
+        motion = motion_class(v["speed_mps"], v["yaw_rad"], ego["speed_mps"], ego["yaw_rad"])
+        out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion))
     return out, np.array(centres).reshape(-1, 2)
 
 
@@ -150,11 +164,11 @@ def run_scenario(
             if sf is None:
                 continue
             gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
+            moving = gt[k]["ego"]["speed_mps"] > EGO_MOVING_MPS
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
-            eval_det.append(EvalFrame(gt_set, dets, t))
-            eval_trk.append(
-                EvalFrame(gt_set, [(tr.id, float(tr.x[0]), float(tr.x[1])) for tr in sf.tracks], t)
-            )
+            eval_det.append(EvalFrame(gt_set, dets, t, moving))
+            trk = [(tr.id, float(tr.x[0]), float(tr.x[1])) for tr in sf.tracks]
+            eval_trk.append(EvalFrame(gt_set, trk, t, moving))
             for tr in sf.tracks:
                 track_rows.append(
                     (k, t, tr.id, float(tr.x[0]), float(tr.x[1]), float(tr.x[2]), float(tr.x[3]))
@@ -199,6 +213,12 @@ def run_scenario(
     mcfg = MetricsConfig(gate_m=GATE_M)
     det_m = evaluate(eval_det, mcfg)
     trk_m = evaluate(eval_trk, mcfg)
+    rings = np.arange(0.0, det_cfg.max_range_m + POLAR_RING_M - 1e-9, POLAR_RING_M)
+    sectors = np.arange(-180.0, 180.0 + 1e-9, POLAR_SECTOR_DEG)
+    polar = recall_polar(eval_trk, rings.tolist(), sectors.tolist(), mcfg)
+    viz.plot_recall_polar(
+        polar, out_dir / "recall_polar.png", f"{scenario.name} - {estimator}: track recall"
+    )
     manifest = json.loads((drive_dir / "manifest.json").read_text())
     metrics = {
         "scenario": scenario.name,
@@ -210,6 +230,12 @@ def run_scenario(
         "detection": det_m["detection"],
         "tracking": trk_m["tracking"],
         "localization": det_m["localization"],
+        "surround": {
+            "detections": breakdown(eval_det, mcfg),
+            "tracks": breakdown(eval_trk, mcfg),
+            "recall_polar": polar,
+            "gt_vehicles": len({g.id for f in eval_trk for g in f.gt}),
+        },
         "compensation": compensation,
         "points_above_road": points_above_road(drive_dir, camera, gt, records),
         "point_pull": _point_pull(pull, series, out_dir / "pull.png", still_image),

@@ -165,3 +165,50 @@ def plot_tracks(rows: list[tuple], path: Path, title: str = "") -> None:
     fig.tight_layout()
     atomic_write(path, lambda p: fig.savefig(p, dpi=90), suffix=".png")
     plt.close(fig)
+
+
+def plot_recall_polar(polar: dict, path: Path, title: str = "") -> None:
+    """Recall around the car (`scenarios.detection_metrics.recall_polar`): a polar grid,
+    ahead up and left to the left, each cell coloured by its recall and labelled with
+    its vehicle-frames (grey: no vehicle there)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.fileio import atomic_write
+
+    r_edges = np.asarray(polar["range_edges_m"], float)
+    b_edges = np.radians(np.asarray(polar["bearing_edges_deg"], float))
+    gt = np.asarray(polar["gt_count"], float)
+    hit = np.asarray(polar["matched"], float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        recall = np.where(gt > 0, hit / np.maximum(gt, 1), np.nan)
+    fig = plt.figure(figsize=(5.6, 5.2))
+    ax = fig.add_subplot(projection="polar")
+    ax.set_theta_zero_location("N")  # bearing 0 (ahead) up, +90 (left) to the left
+    ax.set_facecolor("#dddddd")
+    cmap = plt.get_cmap("RdYlGn").copy()
+    cmap.set_bad("#dddddd")
+    B, Rr = np.meshgrid(b_edges, r_edges)
+    mesh = ax.pcolormesh(B, Rr, np.ma.masked_invalid(recall), cmap=cmap, vmin=0, vmax=1)
+    for i in range(gt.shape[0]):
+        for j in range(gt.shape[1]):
+            if gt[i, j] > 0:
+                ax.text(
+                    0.5 * (b_edges[j] + b_edges[j + 1]),
+                    0.5 * (r_edges[i] + r_edges[i + 1]),
+                    f"{int(gt[i, j])}",
+                    ha="center",
+                    va="center",
+                    fontsize=6,
+                )
+    ax.set_thetagrids([0, 90, 180, 270], ["ahead", "left", "behind", "right"])
+    ax.set_ylim(0, r_edges[-1])
+    ax.set_yticks(r_edges[1:])
+    ax.set_yticklabels([f"{r:g} m" for r in r_edges[1:]], fontsize=7)
+    fig.colorbar(mesh, ax=ax, shrink=0.7, label="recall")
+    ax.set_title(title or "recall around the car (labels: vehicle-frames)", fontsize=9)
+    fig.tight_layout()
+    atomic_write(path, lambda p: fig.savefig(p, dpi=90), suffix=".png")
+    plt.close(fig)

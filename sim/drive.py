@@ -363,6 +363,7 @@ def prepare_drive(
         scenario.fps,
         n / scenario.fps,
         scenario.ego_policy,
+        scenario.ego_speed_mps,
         return_road=True,
     )
     frames = frames[:n]

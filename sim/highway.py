@@ -573,6 +573,7 @@ class HighwayBridge:
     seed: seeds ``env.reset`` and the vehicles' heights.
     fps: camera frame rate [Hz]; each :meth:`step` advances ``1/fps`` s.
     ego_policy: ``"idm"`` (IDM + MOBIL lane changes) or ``"keep-lane"`` (IDM only).
+    ego_speed_mps: the ego's IDM target speed [m/s] (None: the env's own vehicle's).
     min_sim_hz: lowest highway-env integration rate [Hz].
     stop_on_ego_crash: end :meth:`frames` after the first frame with the ego crashed.
 
@@ -587,6 +588,7 @@ class HighwayBridge:
         seed: int,
         fps: float,
         ego_policy: str = "idm",
+        ego_speed_mps: float | None = None,
         *,
         min_sim_hz: float = 15.0,
         stop_on_ego_crash: bool = False,
@@ -603,6 +605,9 @@ class HighwayBridge:
         self.fps = float(fps)
         self.dt_s = 1.0 / self.fps
         self.ego_policy = ego_policy
+        if ego_speed_mps is not None and not (math.isfinite(ego_speed_mps) and ego_speed_mps > 0):
+            raise ValueError(f"ego_speed_mps must be > 0 [m/s] or None, got {ego_speed_mps!r}")
+        self.ego_speed_mps = ego_speed_mps
         self.stop_on_ego_crash = stop_on_ego_crash
 
         defaults = gymnasium.registry[env_id]
@@ -649,7 +654,7 @@ class HighwayBridge:
             heading=float(old.heading),
             speed=float(old.speed),
             target_lane_index=getattr(old, "target_lane_index", None) or old.lane_index,
-            target_speed=getattr(old, "target_speed", None),
+            target_speed=self.ego_speed_mps or getattr(old, "target_speed", None),
             route=getattr(old, "route", None),
             enable_lane_change=self.ego_policy == "idm",
         )
@@ -781,6 +786,7 @@ def simulate(
     fps: float,
     duration_s: float,
     ego_policy: str = "idm",
+    ego_speed_mps: float | None = None,
     *,
     return_road: bool = False,
 ) -> list[WorldFrame] | tuple[list[WorldFrame], RoadGeometry]:
@@ -791,7 +797,7 @@ def simulate(
     """
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise ValueError(f"duration_s must be > 0 [s], got {duration_s!r}")
-    bridge = HighwayBridge(env_id, env_config, seed, fps, ego_policy)
+    bridge = HighwayBridge(env_id, env_config, seed, fps, ego_policy, ego_speed_mps)
     try:
         frames = list(bridge.frames(int(math.floor(duration_s * fps + 1e-9))))
     finally:

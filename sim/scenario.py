@@ -63,6 +63,7 @@ class Scenario(_Strict):
     duration_s: float = Field(10.0, gt=0, le=600)  # [s]
     fps: float = Field(15.0, gt=0, le=120)  # [Hz] camera frame rate
     ego_policy: str = "idm"  # "idm" (IDM + MOBIL lane changes) or "keep-lane"
+    ego_speed_mps: float | None = Field(None, gt=0, le=60)  # [m/s] ego's IDM target; None: env's
     camera: str | dict[str, Any] = "omni-near"  # preset name or {preset: ..., overrides}
     view_range_m: float = Field(120.0, gt=5)  # [m] how far the scene is built
     detection_range_m: float = Field(25.0, gt=1)  # [m] range of the detection evaluation
@@ -82,7 +83,12 @@ class Scenario(_Strict):
         return int(math.floor(self.duration_s * self.fps + 1e-9))
 
     def to_dict(self) -> dict[str, Any]:
-        return self.model_dump(mode="json")
+        """The scenario as plain data; an unset ego_speed_mps is left out, so that renders
+        and suite jobs of scenarios written before it keep their keys."""
+        d = self.model_dump(mode="json")
+        if d["ego_speed_mps"] is None:
+            del d["ego_speed_mps"]
+        return d
 
 
 def format_errors(err: ValidationError, where: str) -> str:
