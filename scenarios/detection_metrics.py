@@ -68,8 +68,7 @@ STATIONARY_MPS = 0.5  # [m/s] a vehicle slower than this over the ground is stat
 CO_MOVING_MPS = 1.0  # [m/s] a vehicle within this of the ego car's velocity is co-moving
 MOTION_CLASSES = ("co-moving", "overtaking", "overtaken", "oncoming", "crossing", "stationary")
 RANGE_BANDS_M = (0.0, 5.0, 10.0, 15.0, 25.0)  # [m] edges of the range bands of `breakdown`
-SECTORS_DEG = {"front": (-45.0, 45.0), "left": (45.0, 135.0), "right": (-135.0, -45.0)}
-# (the rear sector is every bearing outside these: |bearing| >= 135 deg)
+SECTORS = ("front", "left", "rear", "right")  # |bearing| < 45, 45..135 left, >= 135, right
 
 
 def motion_class(speed_mps: float, yaw_rad: float, ego_speed_mps: float, ego_yaw_rad: float) -> str:
@@ -96,11 +95,14 @@ def motion_class(speed_mps: float, yaw_rad: float, ego_speed_mps: float, ego_yaw
 
 
 def sector(bearing_deg: float) -> str:
-    """ "front", "left", "rear" or "right" of a bearing [deg] (0 ahead, +90 left)."""
-    for name, (lo, hi) in SECTORS_DEG.items():
-        if lo <= bearing_deg < hi:
-            return name
-    return "rear"
+    """ "front" (|bearing| < 45 deg), "rear" (|bearing| >= 135), else "left" (bearing > 0)
+    or "right", of a bearing [deg] (0 ahead, +90 left): symmetric about the car's axis."""
+    a = abs(bearing_deg)
+    if a < 45.0:
+        return "front"
+    if a >= 135.0:
+        return "rear"
+    return "left" if bearing_deg > 0 else "right"
 
 
 # ------------------------------------------------------------------ inputs
@@ -367,7 +369,7 @@ def _ratio(num: int, den: int) -> float:
 
 def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
     """Where detection fails: recall and precision by range band (`RANGE_BANDS_M`) and by
-    bearing sector (`SECTORS_DEG`), recall by the vehicles' motion (`MOTION_CLASSES`;
+    bearing sector (`sector`), recall by the vehicles' motion (`MOTION_CLASSES`;
     a hypothesis has no motion, so no precision there), and every metric of `evaluate`
     over the frames where the ego car moves and over those where it is stopped.
 
@@ -392,7 +394,7 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     names = [f"{lo:g}-{hi:g} m" for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
     zero = {"gt_count": 0, "matched": 0, "hyp_count": 0, "hyp_matched": 0}
     bands = {n: dict(zero) for n in names}
-    sectors = {n: dict(zero) for n in (*SECTORS_DEG, "rear")}
+    sectors = {n: dict(zero) for n in SECTORS}
     motion = {n: {"gt_count": 0, "matched": 0} for n in (*MOTION_CLASSES, "unknown")}
     for k, f in enumerate(frames):
         for r, g in enumerate(f.gt):

@@ -23,6 +23,18 @@ def test_shipped_scenarios_load(name):
     assert sc.n_frames == int(sc.duration_s * sc.fps)
 
 
+def test_dense_drives_ship_for_the_surround_suites():
+    dense = [n for n in SHIPPED if n.startswith("dense-")]
+    assert len(dense) == 5
+    assert load_scenario("dense-freeway-omni-near").ego_speed_mps == 19.0
+
+
+def test_an_unset_ego_speed_is_left_out_of_the_scenario_data():
+    """Renders and suite jobs keyed by the scenario data keep their keys."""
+    assert "ego_speed_mps" not in load_scenario("highway-omni-near").to_dict()
+    assert load_scenario("dense-freeway-omni-near").to_dict()["ego_speed_mps"] == 19.0
+
+
 def _write(tmp_path: Path, text: str) -> Path:
     p = tmp_path / "s.yaml"
     p.write_text(text)

@@ -11,15 +11,20 @@ from hypothesis import strategies as st
 
 from estimator.surround.tracking import Tracker
 from scenarios.detection_metrics import (
+    MOTION_CLASSES,
     EvalFrame,
     GtVehicle,
     MetricsConfig,
+    breakdown,
     evaluate,
     hypotheses_from_tracks,
+    motion_class,
     nearest_footprint_point,
     point_footprint_distance,
     recall_by_bearing,
     recall_by_range,
+    recall_polar,
+    sector,
 )
 
 SECTIONS = {
@@ -222,3 +227,87 @@ def test_bad_input():
         GtVehicle(1, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="gate_m"):
         MetricsConfig(gate_m=0.0)
+
+
+# ------------------------------------------------------------------ where detection fails
+@pytest.mark.parametrize(
+    ("speed", "yaw_deg", "ego_speed", "expected"),
+    [
+        (0.2, 0.0, 20.0, "stationary"),
+        (0.2, 0.0, 0.0, "stationary"),
+        (20.5, 0.0, 20.0, "co-moving"),
+        (0.0 + 0.6, 90.0, 0.0, "co-moving"),  # both nearly still: within 1 m/s
+        (25.0, 0.0, 20.0, "overtaking"),
+        (15.0, 10.0, 20.0, "overtaken"),
+        (20.0, 180.0, 20.0, "oncoming"),
+        (10.0, -90.0, 20.0, "crossing"),
+        (10.0, 120.0, 0.0, "crossing"),
+    ],
+)
+def test_motion_class_of_hand_made_cases(speed, yaw_deg, ego_speed, expected):
+    assert motion_class(speed, math.radians(yaw_deg), ego_speed, 0.0) == expected
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(0.0, 40.0),
+    st.floats(-math.pi, math.pi),
+    st.floats(0.0, 40.0),
+    st.floats(-math.pi, math.pi),
+)
+def test_motion_class_does_not_depend_on_the_world_heading(speed, yaw, ego_speed, turn):
+    a = motion_class(speed, yaw, ego_speed, 0.0)
+    assert a in MOTION_CLASSES
+    assert motion_class(speed, yaw + turn, ego_speed, turn) == a
+
+
+def test_sectors_split_the_bearings_at_45_and_135_degrees():
+    assert [sector(b) for b in (0.0, 44.9, 45.0, 134.9, 135.0, -135.0, -134.9, -45.0, -44.9)] == [
+        "front", "front", "left", "left", "rear", "rear", "right", "right", "front",
+    ]  # fmt: skip
+
+
+def test_breakdown_counts_by_band_sector_motion_and_ego_state():
+    ahead = GtVehicle.from_box(1, 8.0, 0.0, 4.0, 2.0, 0.0)  # nearest point 6 m ahead
+    ahead = GtVehicle(1, ahead.footprint_xy, "overtaken")
+    left = GtVehicle(2, GtVehicle.from_box(2, 0.0, 4.0, 4.0, 2.0, 0.0).footprint_xy, "co-moving")
+    behind = GtVehicle(3, GtVehicle.from_box(3, -20.0, 0.0, 4.0, 2.0, 0.0).footprint_xy, "crossing")
+    frames = [
+        # moving: ahead and left found, behind missed, one false alarm on the right at 3 m
+        EvalFrame([ahead, left, behind], [seen(ahead, 10), seen(left, 11), (12, 0.0, -3.0)]),
+        # stopped: only the left one, found
+        EvalFrame([left], [seen(left, 11)], ego_moving=False),
+    ]
+    b = breakdown(frames)
+    bands = b["range_bands"]
+    assert bands["5-10 m"] == {
+        "gt_count": 1, "matched": 1, "hyp_count": 1, "hyp_matched": 1,
+        "recall": 1.0, "precision": 1.0,
+    }  # fmt: skip
+    assert bands["0-5 m"]["gt_count"] == 2 and bands["0-5 m"]["matched"] == 2
+    assert bands["0-5 m"]["hyp_count"] == 3 and bands["0-5 m"]["precision"] == pytest.approx(2 / 3)
+    assert bands["15-25 m"]["gt_count"] == 1 and bands["15-25 m"]["recall"] == 0.0
+    assert math.isnan(bands["15-25 m"]["precision"])  # no hypothesis there
+    sec = b["sectors"]
+    assert (sec["front"]["recall"], sec["left"]["gt_count"], sec["rear"]["recall"]) == (1.0, 2, 0.0)
+    assert sec["right"]["hyp_count"] == 1 and sec["right"]["precision"] == 0.0
+    assert math.isnan(sec["right"]["recall"])
+    mo = b["motion"]
+    assert (mo["co-moving"]["gt_count"], mo["co-moving"]["recall"]) == (2, 1.0)
+    assert mo["crossing"]["recall"] == 0.0 and mo["overtaken"]["recall"] == 1.0
+    assert "unknown" not in mo
+    ego = b["ego_state"]
+    assert ego["moving"]["frames"] == 1 and ego["stopped"]["frames"] == 1
+    assert ego["moving"]["detection"]["recall"] == pytest.approx(2 / 3)
+    assert ego["moving"]["detection"]["precision"] == pytest.approx(2 / 3)
+    assert ego["stopped"]["detection"]["recall"] == 1.0
+
+
+def test_recall_polar_places_each_vehicle_once_by_range_and_bearing():
+    ahead, left = car(1, 8.0, 0.0), car(2, 0.0, 4.0)
+    frames = [EvalFrame([ahead, left], [seen(ahead, 10)]), EvalFrame([left], [])]
+    p = recall_polar(frames, [0.0, 5.0, 10.0], [-180.0, -90.0, 0.0, 90.0, 180.0])
+    gt, hit = np.array(p["gt_count"]), np.array(p["matched"])
+    assert gt.sum() == 3 and hit.sum() == 1
+    assert gt[0, 3] == 2 and hit[0, 3] == 0  # left: nearest point (0, 3), bearing 90
+    assert gt[1, 2] == 1 and hit[1, 2] == 1  # ahead: nearest point (6, 0), bearing 0

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -49,6 +50,15 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert set(m["detection"]) >= {"recall", "precision", "gt_count", "matched"}
     assert set(m["tracking"]) >= {"mota", "idf1", "hota", "id_switches"}
     assert set(m["localization"]) >= {"median_error_m", "p90_error_m"}
+    sur = m["surround"]  # where detection fails: every breakdown, for tracks and detections
+    for part in ("tracks", "detections"):
+        assert set(sur[part]) == {"range_bands", "sectors", "motion", "ego_state"}
+        bands = sur[part]["range_bands"]
+        assert list(bands) == ["0-5 m", "5-10 m", "10-15 m", "15-25 m"]
+        assert sum(b["gt_count"] for b in bands.values()) == m["detection"]["gt_count"]
+        assert sur[part]["ego_state"]["moving"]["frames"] >= 20
+    assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
+    assert "by motion relative to the ego car" in (out / "report.html").read_text()
     audit = m["points_above_road"]  # a highway with guard rails: some, not most
     assert audit["frames"] == 23 and audit["inliers"] > 0
     assert 0.0 <= audit["inlier_share"] < 0.5 and 0.0 <= audit["speed_info_share"] < 0.5
@@ -66,6 +76,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
         "tracks.png",
         "surround.png",
         "pull.png",
+        "recall_polar.png",
         "analysis.mp4",
         "report.html",
         "drive/drive.mp4",

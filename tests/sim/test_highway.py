@@ -124,6 +124,19 @@ def test_idm_changes_lane_and_keep_lane_does_not():
     assert np.ptp(ys["keep-lane"]) < 0.05  # [m] highway lanes are straight along x
 
 
+def test_ego_target_speed_is_followed_and_bad_ones_refused():
+    """An empty road: the ego's IDM reaches the asked speed instead of the env's own."""
+    cfg = {"vehicles_count": 0}
+    own = HighwayBridge("highway-v0", cfg, 1, FPS, ego_policy="keep-lane")
+    slow = HighwayBridge("highway-v0", cfg, 1, FPS, ego_policy="keep-lane", ego_speed_mps=15.0)
+    v_own = [f.ego.speed_mps for f in own.frames(150)][-1]
+    v_slow = [f.ego.speed_mps for f in slow.frames(150)][-1]
+    assert abs(v_slow - 15.0) < 0.5  # [m/s] after 10 s
+    assert v_own > 19.0
+    with pytest.raises(ValueError, match="ego_speed_mps"):
+        HighwayBridge("highway-v0", cfg, 1, FPS, ego_speed_mps=-3.0)
+
+
 def test_ego_crash_is_recorded_and_can_stop_the_drive():
     b = HighwayBridge("merge-v0", {}, 0, FPS, stop_on_ego_crash=True)
     first = list(b.frames(1))
