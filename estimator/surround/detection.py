@@ -134,7 +134,13 @@ class DetectorConfig:
     # obstacle map where the ground is hidden (car-body mask)
     min_height_m: float = 0.8  # [m] a vehicle's moving part reaches at least this height
     hidden_margin_m: float = 0.6  # nearest point within this of the seen area's inner edge [m]
-    hidden_range_frac: float = 0.6  # [-] such a detection is placed at this fraction of it
+    hidden_range_frac: float = 0.6  # [-] without an arc to fit: placed at this fraction of it
+    # a hidden vehicle is a box of this size along the ego car's heading, placed so that it
+    # spans the bearings its blob spans at the edge (`hidden_box_nearest_point`)
+    hidden_box_m: tuple[float, float] = (4.7, 1.9)  # [m] (length, width) of a typical car
+    # the motion mask reaches beyond a vehicle by about its window: each end of the arc
+    # is moved in by this much, in image pixels along the edge
+    hidden_arc_shrink_px: float = 25.0  # [px], 0..60
     # full-resolution refinement of the nearest point (the blob's lowest moving edge)
     refine: bool = True  # [-] refine each blob's nearest point at full resolution
     refine_radius_px: int = 24  # [px] half-size of the search window around the coarse point
@@ -345,6 +351,47 @@ def nearest_on_contour(
     return best
 
 
+def hidden_box_nearest_point(
+    bearing_lo_rad: float, bearing_hi_rad: float, max_range_m: float, box_m: tuple[float, float]
+) -> np.ndarray | None:
+    """(2,) point [m] nearest the camera of the box (length, width) [m], heading along x,
+    whose bearings from the camera span bearing_lo..bearing_hi [rad] (bearing_hi ahead of
+    bearing_lo counter-clockwise) and whose nearest point lies within max_range_m [m];
+    None when no such box matches the span to 2 deg.
+
+    A vehicle whose ground contact is hidden shows its bearings but not its range: with
+    its size known, the span it covers gives the range (nearer is wider). The fit is a
+    grid search over the box's centre (range 0.05 m, bearing span/40 steps)."""
+    span = float(np.angle(np.exp(1j * (bearing_hi_rad - bearing_lo_rad))))
+    if span <= 0:
+        return None
+    mid = bearing_lo_rad + 0.5 * span
+    half = 0.5 * np.asarray(box_m, float)
+    rho = np.arange(0.5, max_range_m + half[0] + 1e-9, 0.05)
+    theta = mid + np.linspace(-0.5, 0.5, 41) * span
+    R, T = np.meshgrid(rho, theta, indexing="ij")
+    c = np.stack([R * np.cos(T), R * np.sin(T)], axis=-1).reshape(-1, 2)  # (P, 2) centres
+    corners = c[:, None, :] + half * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])  # (P, 4, 2)
+    rel = np.arctan2(corners[..., 1], corners[..., 0]) - mid
+    rel = np.angle(np.exp(1j * rel))
+    lo, hi = rel.min(axis=1), rel.max(axis=1)
+    # the box must not hold the camera (|x| < a and |y| < b): its bearings would wrap
+    outside = (np.abs(c[:, 0]) > half[0]) | (np.abs(c[:, 1]) > half[1])
+    near = np.stack(
+        [
+            np.clip(0.0, c[:, 0] - half[0], c[:, 0] + half[0]),
+            np.clip(0.0, c[:, 1] - half[1], c[:, 1] + half[1]),
+        ],
+        axis=1,
+    )  # (P, 2) the box's point nearest the camera
+    ok = outside & (np.hypot(near[:, 0], near[:, 1]) <= max_range_m)
+    cost = np.where(ok, (lo + 0.5 * span) ** 2 + (hi - 0.5 * span) ** 2, np.inf)
+    k = int(np.argmin(cost))
+    if not np.isfinite(cost[k]) or cost[k] > 2 * np.radians(2.0) ** 2:
+        return None
+    return near[k]
+
+
 class VehicleDetector:
     """Section 5 detector for one camera; lookups are built once."""
 
@@ -389,6 +436,7 @@ class VehicleDetector:
         nb = len(self._inner)
         bins = ((self._plan_bearing + np.pi) / (2 * np.pi) * nb).astype(int) % nb
         self._inner_map = self._inner[bins].astype(np.float32)  # (S, S) inner edge per cell
+        self._edge_px_per_rad = self._edge_pixel_density()  # (nb,) [px/rad] along the edge
         self._n = self.comp.n
         self._lams = tuple(cfg.moving_lambdas) + tuple(cfg.static_lambdas)
         self._road_xy = pixel_road_xy(camera, mount)  # (H, W, 2) inverse perspective
@@ -425,6 +473,30 @@ class VehicleDetector:
         seen &= self.valid[v, u]
         np.minimum.at(inner, b[seen], self._plan_dist[seen])
         return inner
+
+    def _edge_pixel_density(self) -> np.ndarray:
+        """(nb,) image pixels per radian of bearing along the inner edge (per bin of
+        `_inner`; 0 where the edge is not seen)."""
+        nb = len(self._inner)
+        beta = (np.arange(nb) + 0.5) / nb * 2 * np.pi - np.pi
+        xy = self._inner[:, None] * np.stack([np.cos(beta), np.sin(beta)], axis=1)
+        cr = np.round(self.plan.to_pixel(xy)).astype(int)
+        S = self.plan.size
+        ok = np.isfinite(self._inner) & np.all((cr >= 0) & (cr < S), axis=1)
+        cr = np.clip(cr, 0, S - 1)
+        pix = np.stack(
+            [self.plan.map_x[cr[:, 1], cr[:, 0]], self.plan.map_y[cr[:, 1], cr[:, 0]]], 1
+        )
+        ok &= pix[:, 0] >= 0
+        step = np.linalg.norm(np.roll(pix, -1, axis=0) - np.roll(pix, 1, axis=0), axis=1)
+        ok &= np.roll(ok, -1) & np.roll(ok, 1)
+        dens = np.where(ok, step / (2 * (2 * np.pi / nb)), np.nan)
+        # the edge is jagged bin to bin: a median over +-5 deg of bearing
+        k = max(1, nb // 72)
+        windows = np.stack([np.roll(dens, j) for j in range(-k, k + 1)], axis=1)
+        with np.errstate(all="ignore"):
+            smooth = np.nanmedian(windows, axis=1)
+        return np.where(np.isfinite(smooth), smooth, 0.0)
 
     def inner_edge_range(self, bearing_rad: float) -> float:
         nb = len(self._inner)
@@ -810,11 +882,29 @@ class VehicleDetector:
                 edge_g = (nz_lab == g) & nz_edge
                 tall_g = edge_g & nz_tall
                 sel = nz[tall_g] if tall_g.any() else nz[edge_g]
+                edge_r = self.inner_edge_range(bearing)
+                xy = None
                 if len(sel):
                     b = self._plan_bearing.ravel()[sel]
                     bearing = float(np.arctan2(np.sin(b).mean(), np.cos(b).mean()))
-                rng = cfg.hidden_range_frac * self.inner_edge_range(bearing)
-                xy = rng * np.array([np.cos(bearing), np.sin(bearing)])
+                    rel = np.angle(np.exp(1j * (b - bearing)))
+                    edge_r = self.inner_edge_range(bearing)
+                    nb = len(self._inner)
+                    dens = self._edge_px_per_rad[int((bearing + np.pi) / (2 * np.pi) * nb) % nb]
+                    shrink = cfg.hidden_arc_shrink_px / dens if dens > 0 else 0.0
+                    xy = hidden_box_nearest_point(
+                        bearing + rel.min() + shrink,
+                        bearing + rel.max() - shrink,
+                        edge_r,
+                        cfg.hidden_box_m,
+                    )
+                if xy is None:
+                    xy = (
+                        cfg.hidden_range_frac
+                        * edge_r
+                        * np.array([np.cos(bearing), np.sin(bearing)])
+                    )
+                rng = float(np.hypot(*xy))
             # range: checked again on the final (refined) point
             if rng > cfg.max_range_m + 5.0 or height < cfg.min_height_m:
                 continue

@@ -1,7 +1,7 @@
 """Regression test on detection recall: the `smoke` suite against its committed baseline.
 
-Runs scenarios/suites/smoke.yaml for real (12 short jobs: render, estimate, detect, track;
-~2-3 minutes on 2 cores) and fails, naming the job, the metric and the delta, when recall,
+Runs scenarios/suites/smoke.yaml for real (18 short jobs: render, estimate, detect, track;
+~3 minutes on 2 cores) and fails, naming the job, the metric and the delta, when recall,
 precision, MOTA, the speed, yaw-rate or A RMSE is worse than scenarios/baselines/smoke.json
 by more than `TOLERANCE`. A change that makes them worse on purpose updates the baseline on purpose:
 ``omnibench suite scenarios/suites/smoke.yaml --out DIR && omnibench baseline update DIR``.
@@ -9,6 +9,7 @@ by more than `TOLERANCE`. A change that makes them worse on purpose updates the 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from scenarios.regression import BASELINE_METRICS, Tolerance, check_baseline
@@ -34,6 +35,15 @@ def test_smoke_suite_holds_its_baseline(tmp_path: Path) -> None:
     )
     errors = [f"{o.job.label}: {o.error}" for o in res.outcomes if o.status != "ok"]
     assert not errors, "smoke jobs failed:\n" + "\n".join(errors)
+    # the recall guard stands on many vehicles: at least 5 distinct ones and 150
+    # vehicle-frames in the direct estimator's jobs (the dense exit brings most)
+    direct = [
+        json.loads((run_dir / o.job.describe()["dir"] / "metrics.json").read_text())
+        for o in res.outcomes
+        if o.job.estimator == "direct"
+    ]
+    assert sum(m["detection"]["gt_count"] for m in direct) >= 150
+    assert max(m["surround"]["gt_vehicles"] for m in direct) >= 5
     cmp = check_baseline(run_dir, TOLERANCE)
     assert not cmp.only_base, f"baseline jobs not run: {cmp.only_base}"
     assert len(cmp.deltas) == len(BASELINE_METRICS) * len(res.outcomes)

@@ -35,7 +35,7 @@ def _suite(tmp_path: Path, **data) -> Path:
 @pytest.mark.parametrize(
     "name, jobs, drives",
     [
-        ("smoke", 12, 4),
+        ("smoke", 18, 6),
         ("paper", 12, 6),
         ("full", 45, 15),
         ("can-bias-sweep", 14, 7),
@@ -43,6 +43,8 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("validation-rect", 8, 8),
         ("check-rect", 8, 4),
         ("check-omni", 20, 10),
+        ("surround-tune", 10, 10),
+        ("surround-check", 10, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
