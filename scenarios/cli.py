@@ -175,12 +175,18 @@ def run(
     road_mask: str | None = typer.Option(
         None, help="'gt': give the estimator the true road mask (a diagnostic ceiling)"
     ),
+    detector: str = typer.Option(
+        "hypotheses", help="surround detector: hypotheses | paper (section 5 as written)"
+    ),
 ) -> None:
     """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
     from estimator.egomotion.baselines import check_estimator
+    from estimator.surround.detection import DETECTOR_METHODS
 
     try:  # the cheap inputs first: nothing is simulated or rendered for a bad one
         check_estimator(estimator)
+        if detector not in DETECTOR_METHODS:
+            raise ValueError(f"--detector {detector!r}: must be one of {list(DETECTOR_METHODS)}")
         if frames is not None and frames < 1:
             raise ValueError(f"--frames {frames}: must be >= 1")
         if road_mask not in (None, "gt"):
@@ -194,7 +200,9 @@ def run(
 
     try:
         sc = load_scenario(scenario)
-        m = run_scenario(sc, out, estimator=estimator, max_frames=frames, road_mask=road_mask)
+        m = run_scenario(
+            sc, out, estimator=estimator, max_frames=frames, road_mask=road_mask, detector=detector
+        )
     except (ScenarioError, DriveError, ValueError) as e:
         _fail(str(e))
     e = m["ego"]

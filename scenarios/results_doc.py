@@ -18,7 +18,7 @@ from typing import Any
 
 from scenarios.history import git_commit
 from scenarios.regression import BaselineError, read_summary
-from scenarios.suite import ROLE_MEANING
+from scenarios.suite import DEFAULT_DETECTOR, ROLE_MEANING
 
 # (flattened metrics.json key, column head, format)
 EGO_COLUMNS = (
@@ -112,14 +112,21 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
             _fmt(m.get("frames"), "{:.0f}"),
         ]
 
-    rows = [keys(j) + [_fmt(_metrics(j).get(k), f) for k, _, f in EGO_COLUMNS] for j in jobs]
+    # the ego figures of a job do not depend on its surround detector: one row per estimate
+    ego_jobs = [j for j in jobs if j.get("detector", DEFAULT_DETECTOR) == DEFAULT_DETECTOR]
+    rows = [keys(j) + [_fmt(_metrics(j).get(k), f) for k, _, f in EGO_COLUMNS] for j in ego_jobs]
     lines += ["Ego-motion:", ""] + _table(key_heads + [h for _, h, _ in EGO_COLUMNS], rows)
     # every job that evaluated vehicles (detection runs on each estimator's compensation)
     det = [j for j in jobs if (j.get("metrics") or {}).get("detection.gt_count")]
     if det:
         cols = DETECTION_COLUMNS
-        rows = [keys(j) + [_fmt(_metrics(j).get(k), f) for k, _, f in cols] for j in det]
-        heads = key_heads + [h for _, h, _ in DETECTION_COLUMNS]
+        rows = [
+            keys(j)
+            + [j.get("detector", DEFAULT_DETECTOR)]
+            + [_fmt(_metrics(j).get(k), f) for k, _, f in cols]
+            for j in det
+        ]
+        heads = key_heads + ["detector"] + [h for _, h, _ in DETECTION_COLUMNS]
         lines += ["", "Surround detection and tracking:", ""] + _table(heads, rows)
     if failed:
         lines += ["", f"{len(failed)} jobs did not finish:"]
@@ -201,7 +208,9 @@ def headline_markdown(summaries: list[dict[str, Any]], estimator: str = "direct"
         jobs = [
             _metrics(j)
             for j in s.get("jobs", [])
-            if j.get("status") == "ok" and j.get("estimator") == estimator
+            if j.get("status") == "ok"
+            and j.get("estimator") == estimator
+            and j.get("detector", DEFAULT_DETECTOR) == DEFAULT_DETECTOR
         ]
         det = [m for m in jobs if m.get("detection.gt_count")]
         rows.append(

@@ -27,7 +27,7 @@ from estimator.pipeline import write_egomotion_csv
 from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
 from estimator.surround.analyzer import SurroundAnalyzer
-from estimator.surround.detection import DetectorConfig
+from estimator.surround.detection import DETECTOR_METHODS, DetectorConfig
 from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import (
@@ -108,15 +108,20 @@ def run_scenario(
     max_frames: int | None = None,
     video: bool = True,
     road_mask: str | None = None,
+    detector: str = "hypotheses",
 ) -> dict:
     """Render (resuming), estimate, detect, track and measure one scenario.
 
     road_mask: ``"gt"`` gives the estimator each frame's true road mask (what lies
     within ``MIN_HEIGHT_M`` of the road, from the range images): the speed it then
     reaches is what a perfect road segmentation would allow, a diagnostic ceiling.
-    The cheap inputs (estimator, max_frames, road_mask) are checked before any rendering.
+    detector: the surround detector, `DetectorConfig.method` ("hypotheses" or "paper").
+    The cheap inputs (estimator, max_frames, road_mask, detector) are checked before any
+    rendering.
     """
     check_estimator(estimator)
+    if detector not in DETECTOR_METHODS:
+        raise ValueError(f"detector must be one of {DETECTOR_METHODS}, got {detector!r}")
     if max_frames is not None and max_frames < 1:
         raise ValueError(f"max_frames must be >= 1 (or None: every frame), got {max_frames}")
     if road_mask not in (None, "gt"):
@@ -129,7 +134,7 @@ def run_scenario(
     camera, mount = load_camera(drive_dir / "camera.yaml")
     times = read_timestamps_csv(drive_dir / "timestamps.csv")
     can = read_can_csv(drive_dir / "can.csv")
-    det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
+    det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m, method=detector)
     est = make_estimator(estimator, camera, mount)
     surround = SurroundAnalyzer(camera, mount, det_cfg)
     unit_rays = camera_unit_rays(camera) if road_mask else None
@@ -224,6 +229,7 @@ def run_scenario(
         "scenario": scenario.name,
         "camera": scenario.camera if isinstance(scenario.camera, str) else "inline",
         "estimator": estimator,
+        "detector": detector,
         "road_mask": road_mask or "none",
         "frames": drive.n_frames,
         "ego": {**ego_metrics(series), **ego_consistency(records, gt, mount)},

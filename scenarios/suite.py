@@ -60,6 +60,8 @@ from scenarios.config import (
 )
 from sim.scenario import format_errors
 
+DEFAULT_DETECTOR = "hypotheses"  # `estimator.surround.detection.DetectorConfig.method`
+
 SUITES_DIR = Path(__file__).parent / "suites"
 REPO_DIR = Path(__file__).resolve().parents[1]
 
@@ -148,6 +150,9 @@ class SuiteSpec(_Strict):
     scenarios: list[str] = Field(min_length=1)
     cameras: list[str | dict[str, Any]] | None = Field(None, min_length=1)
     estimators: list[str] = Field(default_factory=lambda: ["direct"], min_length=1)
+    # surround detectors (`estimator.surround.detection.DETECTOR_METHODS`): "hypotheses"
+    # (the default) and "paper" (section 5 as written, a baseline)
+    detectors: list[str] = Field(default_factory=lambda: [DEFAULT_DETECTOR], min_length=1)
     seeds: list[int] | None = Field(None, min_length=1)
     overrides: dict[str, Any] = Field(default_factory=dict)
     frames: int | None = Field(None, ge=2)  # only the first N frames of each drive
@@ -163,6 +168,18 @@ class SuiteSpec(_Strict):
             check_estimator(e)
         if len(set(v)) != len(v):
             raise ValueError(f"estimators listed twice: {v}")
+        return v
+
+    @field_validator("detectors")
+    @classmethod
+    def _detectors(cls, v: list[str]) -> list[str]:
+        from estimator.surround.detection import DETECTOR_METHODS
+
+        for d in v:
+            if d not in DETECTOR_METHODS:
+                raise ValueError(f"unknown detector {d!r}; known: {list(DETECTOR_METHODS)}")
+        if len(set(v)) != len(v):
+            raise ValueError(f"detectors listed twice: {v}")
         return v
 
     @field_validator("overrides")
@@ -235,10 +252,13 @@ class Job:
     frames: int  # effective frame count
     render_key: str
     video: bool = True
+    detector: str = "hypotheses"  # `DEFAULT_DETECTOR` or another surround detector
 
     @property
     def label(self) -> str:
         extra = "".join(f" {k}={v}" for k, v in self.overrides.items())
+        if self.detector != DEFAULT_DETECTOR:
+            extra += f" detector={self.detector}"
         return f"{self.scenario.name} | {self.camera} | {self.estimator} | seed {self.seed}{extra}"
 
     @property
@@ -250,6 +270,8 @@ class Job:
     def dirname(self) -> str:
         """Folder of the job under the suite's ``jobs/``: readable and unique."""
         text = f"{self.scenario.name}.{self.camera}.{self.estimator}"
+        if self.detector != DEFAULT_DETECTOR:
+            text += f".{self.detector}"
         return re.sub(r"[^A-Za-z0-9._=-]+", "_", text)[:80] + f".{self.job_id[:10]}"
 
     def describe(self) -> dict[str, Any]:
@@ -261,6 +283,7 @@ class Job:
             "scenario_source": self.scenario_source,
             "camera": self.camera,
             "estimator": self.estimator,
+            "detector": self.detector,
             "seed": self.seed,
             "overrides": self.overrides,
             "frames": self.frames,
@@ -313,8 +336,15 @@ def camera_label(spec: str | dict[str, Any]) -> str:
     return f"{spec.get('preset', 'camera')}({rest})"
 
 
-def job_id_for(scenario: Scenario, estimator: str, frames: int) -> str:
-    return _hash({"scenario": scenario.to_dict(), "estimator": estimator, "frames": frames}, 16)
+def job_id_for(
+    scenario: Scenario, estimator: str, frames: int, detector: str = "hypotheses"
+) -> str:
+    """A job's stable id; the default detector is left out of the hash, so that jobs
+    named before detectors could be chosen keep their ids."""
+    key = {"scenario": scenario.to_dict(), "estimator": estimator, "frames": frames}
+    if detector != DEFAULT_DETECTOR:
+        key["detector"] = detector
+    return _hash(key, 16)
 
 
 def render_key_for(scenario: Scenario, frames: int) -> str:
@@ -461,8 +491,8 @@ def expand(spec: SuiteSpec, base_dir: Path | None, where: str) -> list[Job]:
                         raise SuiteError(str(e)) from None
                     n = sc.n_frames if spec.frames is None else min(sc.n_frames, spec.frames)
                     rkey = render_key_for(sc, n)
-                    for est in spec.estimators:
-                        jid = job_id_for(sc, est, n)
+                    for est, det in itertools.product(spec.estimators, spec.detectors):
+                        jid = job_id_for(sc, est, n, det)
                         job = Job(
                             job_id=jid,
                             scenario=sc,
@@ -474,6 +504,7 @@ def expand(spec: SuiteSpec, base_dir: Path | None, where: str) -> list[Job]:
                             frames=n,
                             render_key=rkey,
                             video=spec.video,
+                            detector=det,
                         )
                         if jid in seen:  # e.g. a glob and a name for the same scenario
                             continue

@@ -88,6 +88,8 @@ from estimator.egomotion.homography import homography_parts
 from estimator.geometry import skew
 from estimator.surround.planview import PlanView, pixel_road_xy
 
+DETECTOR_METHODS = ("hypotheses", "paper")  # `DetectorConfig.method`
+
 
 @dataclass(frozen=True)
 class DetectorConfig:
@@ -96,12 +98,17 @@ class DetectorConfig:
     "px" are pixels of the full-resolution image unless stated otherwise.
     """
 
+    # "hypotheses": the motion-hypothesis test below (the default); "paper": the paper's
+    # section 5 as written, eq. 22 thresholded, plan view, 1 x N closing, blobs, nearest
+    # point (no height test, no refinement, no hidden-ground handling), a baseline
+    method: str = "hypotheses"
     # temporal baseline and working resolution
     baseline_frames: int = 2  # [frames] the current frame is compared with the one n before
     scale: int = 2  # [-] working resolution = full / scale (1 or 2; pyrDown)
     # eq. 22 (kept for display: `DetectionFrame.normalized_difference`)
     nd_kernel_px: int = 7  # K: Gaussian averaging window of eq. 22 [px]
     nd_k: float = 50.0  # k: regulariser of eq. 22 [grey level^2]
+    nd_threshold_px: float = 0.5  # [px] |eq. 22| (a normal flow) above which "paper" marks motion
     # motion hypotheses: lambda = h / (h - z) for static points at height z (road: 1)
     # static points at 0 .. ~1.3 m in steps of a quarter of the road's image motion
     # (finer steps near the road: periodic structure such as guard-rail posts must not
@@ -161,6 +168,10 @@ class DetectorConfig:
     vehicle_clearance_m: float = 0.15  # [m] z_c; 0 to take the nearest point on the road
 
     def __post_init__(self) -> None:
+        if self.method not in DETECTOR_METHODS:
+            raise ValueError(
+                f"DetectorConfig.method must be one of {DETECTOR_METHODS}, got {self.method!r}"
+            )
         if self.baseline_frames < 1 or self.scale not in (1, 2):
             raise ValueError(
                 f"DetectorConfig: baseline_frames >= 1 and scale in (1, 2), got "
@@ -531,7 +542,8 @@ class VehicleDetector:
         warped: dict[float, np.ndarray] = {}
         Hs: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         ok = self.road_s & self.valid_s
-        for lam in self._lams:
+        paper = cfg.method == "paper"
+        for lam in (1.0,) if paper else self._lams:
             H = np.eye(3)
             for x, dt in steps:
                 H = hypothesis_homography(x, K0, n, dt, lam) @ H
@@ -544,6 +556,8 @@ class VehicleDetector:
             if key:
                 ok &= self.comp.sampled_in_view(mx, my, s)
         a = np.asarray(current, np.float32)
+        if paper:
+            return self._detect_paper(a, warped[1.0], ok)
         # 2. motion score at the working scale and one level coarser
         K = cfg.window_px / s
         sigma = cfg.registration_sigma_px / s
@@ -612,6 +626,42 @@ class VehicleDetector:
 
         return DetectionFrame(
             list(cands), nd, moving, plan, cands, score, (self.camera.width, self.camera.height)
+        )
+
+    def _detect_paper(self, a: np.ndarray, w1: np.ndarray, ok: np.ndarray) -> DetectionFrame:
+        """Section 5 as the paper writes it: the road-compensated difference (eq. 22)
+        thresholded, the flat-plane transform, a 1 x N closing, blobs, and each blob's
+        point nearest the camera taken as on the road."""
+        cfg, s = self.cfg, self.cfg.scale
+        ndv = normalized_difference(a, w1, cfg.nd_k, max(3, cfg.nd_kernel_px // s), ok)
+        moving = (np.abs(ndv) > cfg.nd_threshold_px) & ok
+        plan = cv2.remap(
+            moving.astype(np.uint8) * 255,
+            self._pmx,
+            self._pmy,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
+        cands = self._blobs(plan, None, obstacle_map_only=True)
+        score = np.abs(ndv) * (cfg.score_threshold / cfg.nd_threshold_px)
+        for c in cands:
+            qu = int(np.clip(round((c.pixel[0] + 0.5) / s - 0.5), 0, score.shape[1] - 1))
+            qv = int(np.clip(round((c.pixel[1] + 0.5) / s - 0.5), 0, score.shape[0] - 1))
+            c.score = float(score[qv, qu])
+        cands = [
+            c for c in cands if cfg.min_range_m <= float(np.hypot(c.x_m, c.y_m)) <= cfg.max_range_m
+        ]
+        cands = self._merge_close(cands)
+        return DetectionFrame(
+            list(cands),
+            lambda: ndv,
+            moving,
+            plan,
+            cands,
+            score,
+            (self.camera.width, self.camera.height),
         )
 
     def _merge_close(self, cands: list[Detection]) -> list[Detection]:
@@ -834,7 +884,11 @@ class VehicleDetector:
         keep[0] = False
         return np.where(keep[labels], 255, 0).astype(np.uint8)
 
-    def _blobs(self, plan: np.ndarray, tall: np.ndarray | None = None) -> list[Detection]:
+    def _blobs(
+        self, plan: np.ndarray, tall: np.ndarray | None = None, obstacle_map_only: bool = False
+    ) -> list[Detection]:
+        """Candidates of the plan mask's blobs (clustered); obstacle_map_only: each blob's
+        nearest cell as it is (no hidden-ground handling, no height test: the paper's)."""
         cfg = self.cfg
         binary = (plan > 0).astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
@@ -875,6 +929,8 @@ class VehicleDetector:
             hidden = rng < self.inner_edge_range(bearing) + cfg.hidden_margin_m
             # apparent height: a point at height z, range d is drawn at d h / (h - z)
             height = self.mount.height_m * (1.0 - rng / max(far[g], rng))
+            if obstacle_map_only:
+                hidden, height = False, float("inf")
             if hidden:
                 # the blob meets the inner edge along an arc: its middle is the bearing;
                 # the arc of its tall parts where they reach the edge (low structure, e.g.

@@ -83,6 +83,18 @@ def test_can_bias_sweep_spans_minus_to_plus_15_percent():
 
 
 # ------------------------------------------------------------------ expansion
+def test_detectors_are_a_job_axis_and_the_default_keeps_its_job_ids(tmp_path):
+    plain = load_suite(_suite(tmp_path, frames=10))
+    both = load_suite(_suite(tmp_path, frames=10, detectors=["hypotheses", "paper"]))
+    assert [j.detector for j in both.jobs] == ["hypotheses", "paper"]
+    assert both.jobs[0].job_id == plain.jobs[0].job_id  # the default is not hashed
+    assert both.jobs[1].job_id != both.jobs[0].job_id
+    assert both.jobs[1].render_key == both.jobs[0].render_key  # one render for both
+    assert "detector=paper" in both.jobs[1].label and both.jobs[1].dirname.count(".paper.") == 1
+    with pytest.raises(SuiteError, match="unknown detector 'blobs'"):
+        load_suite(_suite(tmp_path, detectors=["blobs"]))
+
+
 def test_product_of_cameras_estimators_seeds_and_sweeps(tmp_path):
     p = _suite(
         tmp_path,

@@ -225,3 +225,31 @@ def test_nearest_on_contour_weak_points_only_extend_the_contour():
     assert np.hypot(*(q - (15.0, 3.0))) < 0.15
     q_strong = nearest_on_contour(strong, 0.005, 0.75)
     assert np.hypot(*(q_strong - (15.0, 3.6))) < 0.15
+
+
+def test_paper_method_finds_what_the_road_homography_does_not_explain():
+    """Section 5 as written: eq. 22 on the road-compensated pair, thresholded. A patch that
+    stayed where it was (a vehicle at the ego car's speed) is a candidate near it; the
+    same pair without the patch gives none; an unknown method is refused."""
+    cam, mount = load_camera("omni-near")
+    cfg = DetectorConfig(method="paper")
+    det = VehicleDetector(cam, mount, cfg)
+    comp, s = det.comp, cfg.scale
+    early = _textured((cam.height // s, cam.width // s), 1)
+    road, _ = comp.warp_h(early, hypothesis_homography(X_HIGHWAY, mount.K0, comp.n, DT, 1.0), s)
+    still, _ = comp.warp_h(early, hypothesis_homography(X_HIGHWAY, mount.K0, comp.n, DT, 0.0), s)
+    ok = det.road_s & det.valid_s
+    patch = np.zeros_like(ok)
+    patch[150:180, 20:50] = True
+    patch &= ok
+    current = road.copy()
+    current[patch] = still[patch]
+    found = det.detect(current, early, [(X_HIGHWAY, DT)])
+    assert found.candidates
+    v, u = np.nonzero(patch)
+    centre_px = np.array([u.mean() + 0.5, v.mean() + 0.5]) * s - 0.5
+    nearest = min(np.hypot(*(np.array(c.pixel) - centre_px)) for c in found.candidates)
+    assert nearest < 30.0 * s  # [px] full resolution
+    assert not det.detect(road, early, [(X_HIGHWAY, DT)]).candidates
+    with pytest.raises(ValueError, match="method"):
+        DetectorConfig(method="nearest")
