@@ -388,8 +388,8 @@ def bench_detect_cmd(
     camera: str = typer.Option("omni-near", help="camera preset"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
-    """Median and p90 ms per frame of detection + tracking on one core (a rendered highway
-    drive)."""
+    """Median and p90 ms per frame of detection + tracking on one core (the dense freeway
+    drive: 60 vehicles, cars alongside)."""
     from scenarios.benchmarks import bench_detect
 
     _one_core()

@@ -43,8 +43,8 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("validation-rect", 8, 8),
         ("check-rect", 8, 4),
         ("check-omni", 20, 10),
-        ("surround-tune", 10, 10),
-        ("surround-check", 10, 10),
+        ("surround-tune", 20, 10),
+        ("surround-check", 20, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
