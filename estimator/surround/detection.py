@@ -114,9 +114,7 @@ class DetectorConfig:
     # (finer steps near the road: periodic structure such as guard-rail posts must not
     # fit the moving hypothesis better than every static one by aliasing)
     static_lambdas: tuple[float, ...] = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)  # [-] incl. 1.0
-    # moving: fixed to the car (0) and forward slower than the ego car (0 < lambda < 1, a
-    # motion no static point has): 1 - v_ground / v_ego at the road
-    moving_lambdas: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)  # [-] must include 0.0
+    moving_lambdas: tuple[float, ...] = (0.0,)  # [-] must include 0.0 (fixed to the car)
     window_px: float = 10.0  # [px] Gaussian window (K) of the residual energies
     energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
