@@ -175,8 +175,11 @@ def run_scenario(
             trk = [(tr.id, float(tr.x[0]), float(tr.x[1])) for tr in sf.tracks]
             eval_trk.append(EvalFrame(gt_set, trk, t, moving))
             for tr in sf.tracks:
+                P = tr.P
                 track_rows.append(
-                    (k, t, tr.id, float(tr.x[0]), float(tr.x[1]), float(tr.x[2]), float(tr.x[3]))
+                    (k, t, tr.id, *(float(v) for v in tr.x[:4]))
+                    + (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
+                    + (float(P[2, 2]), float(P[2, 3]), float(P[3, 3]))
                 )
             if writer is not None or k == still_k:
                 panel = _panels(
@@ -285,12 +288,22 @@ def _panels(image, rec, sf, camera, mount, surround: SurroundAnalyzer, gt_xy) ->
     return np.concatenate([a, c, d, e], axis=1)
 
 
+# tracks.csv: position [m] and ground velocity [m/s] in the ego road frame, and their
+# covariances (the Kalman filter's P: position [m^2], velocity [(m/s)^2])
+TRACKS_CSV_COLUMNS = (
+    "frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps",
+    "var_x_m2", "cov_xy_m2", "var_y_m2", "var_vx_m2ps2", "cov_vxvy_m2ps2", "var_vy_m2ps2",
+)  # fmt: skip
+
+
 def _write_tracks_csv(path: Path, rows: list[tuple]) -> None:
     buf = _io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps"])
+    w.writerow(TRACKS_CSV_COLUMNS)
     for r in rows:
-        w.writerow([r[0], f"{r[1]:.4f}", r[2]] + [f"{v:.3f}" for v in r[3:]])
+        w.writerow(
+            [r[0], f"{r[1]:.4f}", r[2]] + [f"{v:.3f}" for v in r[3:7]] + [f"{v:.4g}" for v in r[7:]]
+        )
     write_text(path, buf.getvalue())
 
 

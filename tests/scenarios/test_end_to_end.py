@@ -83,6 +83,9 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
         "drive/groundtruth.jsonl",
     ):
         assert (out / name).stat().st_size > 0, name
+    head = (out / "tracks.csv").read_text().splitlines()[0].split(",")
+    assert head[:7] == ["frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps"]
+    assert {"var_x_m2", "cov_xy_m2", "var_y_m2"} <= set(head)
     rows = (out / "egomotion.csv").read_text().splitlines()
     assert len(rows) == 25 and rows[0].startswith("frame,t_s,V_x")
     # a second run reuses the render: no frame is written again
