@@ -53,10 +53,15 @@ strip) is no candidate.
 
 Obstacle map where the road is hidden: a blob whose nearest point lies on the
 inner edge of the seen road (the omni camera's car-body mask, ~7.3 m) does not
-show where the vehicle meets the road, only its bearing. Such a detection is
-flagged ``hidden`` and placed on that bearing (the middle of the arc along
-which the blob's tall parts meet the edge) at ``hidden_range_frac`` of the
-edge's range; the tracker refines it (bearing-only update).
+show where the vehicle meets the road, only its bearings. Such a detection is
+flagged ``hidden``; the arc along which the blob's tall parts meet the edge gives
+its bearings, and a car-sized box along the ego car's heading that spans them gives
+its range (`hidden_box_nearest_point`: the nearer, the wider; without a fit, at
+``hidden_range_frac`` of the edge's range on the arc's middle); the tracker refines
+it (bearing-only update).
+
+``method="paper"`` runs the paper's section 5 as written instead, as a baseline:
+eq. 22 thresholded, plan view, 1 x N closing, blobs, nearest point.
 
 Ego car (nearly) stopped (displacement over the baseline below
 ``still_displacement_m``): every hypothesis is then almost the same warp, S ~ 0
