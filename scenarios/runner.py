@@ -80,7 +80,11 @@ def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicl
             continue
         if _polygon_distance(np.zeros(2), foot) > max_range_m:
             continue
-        motion = motion_class(v["speed_mps"], v["yaw_rad"], ego["speed_mps"], ego["yaw_rad"])
+        motion = (  # "" (unknown) for a record without the vehicles' motion
+            motion_class(v["speed_mps"], v["yaw_rad"], ego["speed_mps"], ego["yaw_rad"])
+            if "speed_mps" in v and "speed_mps" in ego
+            else ""
+        )
         out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion))
     return out, np.array(centres).reshape(-1, 2)
 

@@ -188,8 +188,7 @@ def plot_recall_polar(polar: dict, path: Path, title: str = "") -> None:
     ax = fig.add_subplot(projection="polar")
     ax.set_theta_zero_location("N")  # bearing 0 (ahead) up, +90 (left) to the left
     ax.set_facecolor("#dddddd")
-    cmap = plt.get_cmap("RdYlGn").copy()
-    cmap.set_bad("#dddddd")
+    cmap = plt.get_cmap("RdYlGn").with_extremes(bad="#dddddd")
     B, Rr = np.meshgrid(b_edges, r_edges)
     mesh = ax.pcolormesh(B, Rr, np.ma.masked_invalid(recall), cmap=cmap, vmin=0, vmax=1)
     for i in range(gt.shape[0]):

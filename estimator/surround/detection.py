@@ -495,10 +495,12 @@ class VehicleDetector:
         `_inner`; 0 where the edge is not seen)."""
         nb = len(self._inner)
         beta = (np.arange(nb) + 0.5) / nb * 2 * np.pi - np.pi
-        xy = self._inner[:, None] * np.stack([np.cos(beta), np.sin(beta)], axis=1)
+        seen = np.isfinite(self._inner)
+        r = np.where(seen, self._inner, 0.0)
+        xy = r[:, None] * np.stack([np.cos(beta), np.sin(beta)], axis=1)
         cr = np.round(self.plan.to_pixel(xy)).astype(int)
         S = self.plan.size
-        ok = np.isfinite(self._inner) & np.all((cr >= 0) & (cr < S), axis=1)
+        ok = seen & np.all((cr >= 0) & (cr < S), axis=1)
         cr = np.clip(cr, 0, S - 1)
         pix = np.stack(
             [self.plan.map_x[cr[:, 1], cr[:, 0]], self.plan.map_y[cr[:, 1], cr[:, 0]]], 1
