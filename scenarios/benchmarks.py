@@ -46,7 +46,7 @@ def bench_detect(
     name = camera if isinstance(camera, str) else "inline"
     sc = dense.model_copy(
         update={
-            "name": f"bench-detect-{name}",
+            "name": f"bench-detect-{DETECT_BENCH_SCENARIO}-{name}",
             "camera": camera,
             "duration_s": (n_frames + 1) / dense.fps,
         }
