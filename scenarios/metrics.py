@@ -51,7 +51,7 @@ def exposure_yaw_rates(gt: list[dict], mount: CameraMount, exposure_s: float) ->
     continuous exposure T; 0 at the first and the last frame, which the simulator
     extrapolates). A steering step of 80 deg/s moves the motion the images show by
     1.5 deg/s at 15 fps and 10 ms, on the frames either side of it. The mean image is
-    the mean pose's image only while the blur is small; on held-out rectilinear merge
+    the mean pose's image only while the blur is small; on validation-rect's merge
     s1's swerve (-100 deg/s at 20 m/s: blurs of pixels) the estimates follow the
     frame-time motion instead (-100.06 deg/s; -100.17 at the frame times, -97.66 for
     the means).

@@ -122,7 +122,7 @@ def test_retry_must_keep_the_road_in_view(monkeypatch, min_fraction, replaced):
 def test_retry_counts_inliers_against_what_it_sees(
     monkeypatch, inlier_share, seen_fraction, replaced
 ):
-    """A sharp swerve turns much of the road out of view (held-out rectilinear merge s1,
+    """A sharp swerve turns much of the road out of view (validation-rect's merge, seed 1,
     frame 148: 481 of the prior's 1759 points stay in view, 391 of them inliers). A retry
     that keeps a third of the points in view and fits most of them (``seen_inlier_fraction``)
     is counted against what it sees and taken; one that fits fewer than that fraction of
