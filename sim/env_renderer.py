@@ -125,6 +125,7 @@ class OmniEnvRenderer:
         self._rays: np.ndarray | None = None
         self._episode: _Episode | None = None
         self._episode_count = 0
+        self._static_episode: int | None = None  # episode of the static world drawn last
         self._seed_rng: object = None
         self._seed_base: int | None = None
         self._seed_episode = 0
@@ -154,6 +155,7 @@ class OmniEnvRenderer:
                 self.camera, T_ref.T_world_nominal, self.face_px, cache_body=single
             )
             self.world.invalidate()  # the new renderer needs the window's meshes
+            self._static_episode = None
         return self._renderer
 
     # -- episodes --------------------------------------------------------------
@@ -260,7 +262,10 @@ class OmniEnvRenderer:
     def _update_static(self, x: float, y: float) -> None:
         meshes = self.world.window_meshes(x, y)
         if meshes is not None:
-            self._renderer.set_static(meshes, self.world.window_area())
+            # another window of the same episode's road keeps the coverage tiles built
+            same = self._static_episode == self._episode_count
+            self._renderer.set_static(meshes, self.world.window_area(), same_world=same)
+            self._static_episode = self._episode_count
 
     def _observer_state(self, ep: _Episode, vid: int) -> _Observer:
         obs = ep.observers.get(vid)

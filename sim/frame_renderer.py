@@ -228,9 +228,11 @@ class PlaneFrameRenderer:
     def settings(self) -> dict:
         return {"renderer": "plane", "face_px": self.face_px}
 
-    def set_static(self, static_meshes: list, area_xy: tuple) -> None:
+    def set_static(self, static_meshes: list, area_xy: tuple, same_world: bool = False) -> None:
         """The static world: `sim.scene.build_static_scene`'s meshes (road, markings and
-        ground: the plane; the rest: objects) covering area_xy (xmin, xmax, ymin, ymax) [m]."""
+        ground: the plane; the rest: objects) covering area_xy (xmin, xmax, ymin, ymax) [m].
+        same_world: another window of the world given last (the same road, a window moved
+        with the camera): the fine coverage tiles built so far are kept."""
         by_name = {m.metadata.get("name"): m for m in static_meshes}
         self.scenes.set_static(
             [m for m in static_meshes if m.metadata.get("name") not in PLANE_MESHES]
@@ -239,7 +241,10 @@ class PlaneFrameRenderer:
         if key != self._look_key:
             self.look, self._look_key = plane_look(by_name), key
         self.coverage = CoverageMap(
-            _triangles_xy(by_name.get("road")), _triangles_xy(by_name.get("markings")), area_xy
+            _triangles_xy(by_name.get("road")),
+            _triangles_xy(by_name.get("markings")),
+            area_xy,
+            tiles_from=self.coverage if same_world else None,
         )
         if self._ground is not None:
             self._ground.set_plane(self.look, self.coverage)

@@ -159,10 +159,18 @@ class CoverageMap:
     tiles around the camera is one framed `MipAtlas`), and at COARSE_CELL_M over the area.
 
     A tile's cells depend on the world only, so a render resumed at any frame draws the
-    same road.
+    same road, and a map of another window of the same world (a window that moved with
+    the camera, whose fine tiles all lie well inside it) can take over the tiles built
+    (``tiles_from``).
     """
 
-    def __init__(self, road: list[np.ndarray], markings: list[np.ndarray], area_xy: tuple) -> None:
+    def __init__(
+        self,
+        road: list[np.ndarray],
+        markings: list[np.ndarray],
+        area_xy: tuple,
+        tiles_from: CoverageMap | None = None,
+    ) -> None:
         self.road, self.markings = road, markings
         self._boxes = {"road": _bboxes(road), "markings": _bboxes(markings)}
         xmin, xmax, ymin, ymax = area_xy
@@ -185,7 +193,9 @@ class CoverageMap:
             _mips(np.zeros((n, n, 2), np.uint8), FINE_LEVELS), FINE_CELL_M, periodic=False
         )
         self._window: tuple[int, int] | None = None
-        self._tiles: OrderedDict[tuple[int, int], list[np.ndarray]] = OrderedDict()
+        self._tiles: OrderedDict[tuple[int, int], list[np.ndarray]] = (
+            tiles_from._tiles if tiles_from is not None else OrderedDict()
+        )
 
     @property
     def tile_m(self) -> float:

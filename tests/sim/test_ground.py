@@ -71,3 +71,20 @@ def test_a_mip_level_is_twice_the_blur(blur):
     lo, frac = tex.levels(np.array([blur]))
     assert lo[0] + frac[0] == pytest.approx(np.log2(2 * blur / 0.01))
     assert atlas.n_levels == 1
+
+
+def test_a_moved_window_of_the_same_world_takes_over_the_built_tiles():
+    """Coverage of another window of one world: tiles taken over from the earlier map are
+    the same cells a fresh map builds (and are not built again)."""
+    road = [np.array([[-300.0, -6.0], [300.0, -6.0], [300.0, 6.0], [-300.0, 6.0]])]
+    marks = [np.array([[-300.0, -0.1], [300.0, -0.1], [300.0, 0.1], [-300.0, 0.1]])]
+    first = CoverageMap(road, marks, (-150.0, 150.0, -60.0, 60.0))
+    first.follow(20.0, 1.0)
+    built = dict(first._tiles)
+    moved = CoverageMap(road, marks, (-100.0, 200.0, -60.0, 60.0), tiles_from=first)
+    fresh = CoverageMap(road, marks, (-100.0, 200.0, -60.0, 60.0))
+    moved.follow(30.0, 1.0)
+    fresh.follow(30.0, 1.0)
+    assert np.array_equal(moved.fine.atlas, fresh.fine.atlas)
+    assert moved.fine.atlas[..., 1].any()  # the marking is in the window
+    assert len(built) == 49 and len(moved._tiles) == 49 + 7  # one tile column built anew
