@@ -377,35 +377,44 @@ def hidden_box_nearest_point(
 
     A vehicle whose ground contact is hidden shows its bearings but not its range: with
     its size known, the span it covers gives the range (nearer is wider). The fit is a
-    grid search over the box's centre (range 0.05 m, bearing span/40 steps)."""
+    grid search over the box's centre, coarse (0.25 m of range, span/10 of bearing) then
+    fine around the best (0.05 m, span/40)."""
     span = float(np.angle(np.exp(1j * (bearing_hi_rad - bearing_lo_rad))))
     if span <= 0:
         return None
     mid = bearing_lo_rad + 0.5 * span
     half = 0.5 * np.asarray(box_m, float)
-    rho = np.arange(0.5, max_range_m + half[0] + 1e-9, 0.05)
-    theta = mid + np.linspace(-0.5, 0.5, 41) * span
-    R, T = np.meshgrid(rho, theta, indexing="ij")
-    c = np.stack([R * np.cos(T), R * np.sin(T)], axis=-1).reshape(-1, 2)  # (P, 2) centres
-    corners = c[:, None, :] + half * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])  # (P, 4, 2)
-    rel = np.arctan2(corners[..., 1], corners[..., 0]) - mid
-    rel = np.angle(np.exp(1j * rel))
-    lo, hi = rel.min(axis=1), rel.max(axis=1)
-    # the box must not hold the camera (|x| < a and |y| < b): its bearings would wrap
-    outside = (np.abs(c[:, 0]) > half[0]) | (np.abs(c[:, 1]) > half[1])
-    near = np.stack(
-        [
-            np.clip(0.0, c[:, 0] - half[0], c[:, 0] + half[0]),
-            np.clip(0.0, c[:, 1] - half[1], c[:, 1] + half[1]),
-        ],
-        axis=1,
-    )  # (P, 2) the box's point nearest the camera
-    ok = outside & (np.hypot(near[:, 0], near[:, 1]) <= max_range_m)
-    cost = np.where(ok, (lo + 0.5 * span) ** 2 + (hi - 0.5 * span) ** 2, np.inf)
-    k = int(np.argmin(cost))
-    if not np.isfinite(cost[k]) or cost[k] > 2 * np.radians(2.0) ** 2:
+    cm, sm = math.cos(mid), math.sin(mid)
+    offsets = half * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])  # (4, 2) corners
+
+    def fit(rho: np.ndarray, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        R, T = np.meshgrid(rho, theta, indexing="ij")
+        c = np.stack([R * np.cos(T), R * np.sin(T)], axis=-1).reshape(-1, 2)  # (P, 2)
+        corners = c[:, None, :] + offsets  # (P, 4, 2)
+        # bearings relative to mid: the corners turned by -mid (no wrap within +-pi)
+        x = corners[..., 0] * cm + corners[..., 1] * sm
+        y = corners[..., 1] * cm - corners[..., 0] * sm
+        rel = np.arctan2(y, x)
+        lo, hi = rel.min(axis=1), rel.max(axis=1)
+        # the box must not hold the camera (|x| < a and |y| < b): its bearings would wrap
+        outside = (np.abs(c[:, 0]) > half[0]) | (np.abs(c[:, 1]) > half[1])
+        near = np.clip(0.0, c - half, c + half)  # (P, 2) the box's point nearest the camera
+        ok = outside & (np.hypot(near[:, 0], near[:, 1]) <= max_range_m)
+        cost = np.where(ok, (lo + 0.5 * span) ** 2 + (hi - 0.5 * span) ** 2, np.inf)
+        k = int(np.argmin(cost))
+        return float(cost[k]), np.r_[c[k], near[k]]
+
+    coarse_rho = np.arange(0.5, max_range_m + half[0] + 0.25, 0.25)
+    cost, best = fit(coarse_rho, mid + np.linspace(-0.5, 0.5, 11) * span)
+    if not np.isfinite(cost):
         return None
-    return near[k]
+    rho0, theta0 = float(np.hypot(*best[:2])), math.atan2(best[1], best[0])
+    rho = rho0 + np.arange(-0.25, 0.25 + 1e-9, 0.05)
+    theta = theta0 + np.linspace(-0.1, 0.1, 9) * span
+    cost, best = fit(rho[rho > 0], theta)
+    if not np.isfinite(cost) or cost > 2 * np.radians(2.0) ** 2:
+        return None
+    return best[2:]
 
 
 class VehicleDetector:
@@ -866,11 +875,13 @@ class VehicleDetector:
         cell = np.full(n, -1)
         if len(nz):
             order = np.lexsort((d, lab))
-            lab_o = lab[order]
-            first = np.flatnonzero(np.r_[True, lab_o[1:] != lab_o[:-1]])
-            near[lab_o[first]] = d[order][first]
+            lab_o, d_o = lab[order], d[order]
+            change = lab_o[1:] != lab_o[:-1]
+            first = np.flatnonzero(np.r_[True, change])
+            last = np.flatnonzero(np.r_[change, True])
+            near[lab_o[first]] = d_o[first]
             cell[lab_o[first]] = nz[order][first]
-            np.maximum.at(far, lab, d)
+            far[lab_o[last]] = d_o[last]
         return near, far, cell
 
     def _tall_parts(self, plan: np.ndarray) -> np.ndarray:
