@@ -206,7 +206,7 @@ def plot_recall_polar(polar: dict, path: Path, title: str = "") -> None:
     ax.set_ylim(0, r_edges[-1])
     ax.set_yticks(r_edges[1:])
     ax.set_yticklabels([f"{r:g} m" for r in r_edges[1:]], fontsize=7)
-    fig.colorbar(mesh, ax=ax, shrink=0.7, label="recall")
+    fig.colorbar(mesh, ax=ax, shrink=0.7, pad=0.12, label="recall")
     ax.set_title(title or "recall around the car (labels: vehicle-frames)", fontsize=9)
     fig.tight_layout()
     atomic_write(path, lambda p: fig.savefig(p, dpi=90), suffix=".png")
