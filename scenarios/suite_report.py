@@ -398,6 +398,44 @@ def plot_recall_bins(out_dir: Path, outcomes: list[Outcome]) -> list[tuple[str, 
     return out
 
 
+def pool_recall_polar(
+    out_dir: Path, outcomes: list[Outcome]
+) -> dict[tuple[str, str, str], dict[str, Any]]:
+    """Track recall grids around the car (`metrics.json` "surround.recall_polar") summed
+    over the jobs of each (camera, estimator, detector); jobs without vehicles left out."""
+    pooled: dict[tuple[str, str, str], dict[str, Any]] = {}
+    for o in outcomes:
+        p = out_dir / o.job.describe()["dir"] / "metrics.json"
+        if o.status != "ok" or not p.exists():
+            continue
+        polar = json.loads(p.read_text()).get("surround", {}).get("recall_polar")
+        if not polar or not np.sum(polar["gt_count"]):
+            continue
+        key = (o.job.camera, o.job.estimator, o.job.detector)
+        slot = pooled.get(key)
+        if slot is None:
+            pooled[key] = {**polar, "gt_count": np.array(polar["gt_count"]),
+                           "matched": np.array(polar["matched"])}  # fmt: skip
+        elif slot["range_edges_m"] == polar["range_edges_m"]:
+            slot["gt_count"] = slot["gt_count"] + polar["gt_count"]
+            slot["matched"] = slot["matched"] + polar["matched"]
+    return pooled
+
+
+def plot_recall_polar_pooled(out_dir: Path, outcomes: list[Outcome]) -> list[tuple[str, str]]:
+    """One polar picture of track recall per camera x estimator x detector, pooled over
+    the drives (`pool_recall_polar`)."""
+    from scenarios.visualize import plot_recall_polar
+
+    out = []
+    for i, (key, polar) in enumerate(sorted(pool_recall_polar(out_dir, outcomes).items())):
+        name = f"plots/recall_polar_{i:02d}.png"
+        label = " | ".join(key)
+        plot_recall_polar(polar, out_dir / name, f"{label}: track recall, pooled over drives")
+        out.append((name, f"track recall around the car: {label}, pooled over the drives"))
+    return out
+
+
 BAR_METRICS = (
     ("ego.speed_rmse_pct", "speed RMSE [%]"),
     ("ego.yaw_rate_rmse_dps", "yaw-rate RMSE [deg/s]"),
@@ -504,6 +542,7 @@ def write_report(
         ("estimator bars", lambda: plot_estimator_bars(out_dir, outcomes)),
         ("sweeps", lambda: plot_sweeps(out_dir, suite, outcomes)),
         ("recall bins", lambda: plot_recall_bins(out_dir, outcomes)),
+        ("recall around the car", lambda: plot_recall_polar_pooled(out_dir, outcomes)),
         ("speed errors", lambda: plot_speed_errors(out_dir, outcomes, drive_dir_of)),
     ):
         try:
@@ -516,6 +555,7 @@ def write_report(
             o.job.scenario.name,
             o.job.camera,
             o.job.estimator,
+            o.job.detector,
             o.job.seed,
             str(o.job.overrides),
         ),
@@ -540,7 +580,8 @@ def write_report(
         )
         parts.append(f"<h2>thresholds</h2><ul>{items}</ul>")
     head = "".join(
-        f"<th>{h}</th>" for h in ("scenario", "camera", "estimator", "seed", "overrides", "status")
+        f"<th>{h}</th>"
+        for h in ("scenario", "camera", "estimator", "detector", "seed", "overrides", "status")
     )
     head += "".join(f"<th>{html.escape(h)}</th>" for _, h in TABLE_METRICS)
     head += "<th>thresholds</th><th>files</th>"
@@ -551,6 +592,7 @@ def write_report(
             _fmt(o.job.scenario.name),
             _fmt(o.job.camera),
             _fmt(o.job.estimator),
+            _fmt(o.job.detector),
             _fmt(o.job.seed),
             _fmt(", ".join(f"{k}={v}" for k, v in o.job.overrides.items())),
             _fmt(o.status if o.status != "error" else f"error: {o.error}"),

@@ -252,3 +252,40 @@ def test_report_opens_in_headless_chromium(tmp_path):
     assert magenta > 5 * 100 * 100, magenta
     blue = np.all(np.abs(img - (31, 119, 180)) <= 12, axis=-1).sum()
     assert blue > 500, blue
+
+
+def test_recall_around_the_car_is_pooled_per_camera_estimator_and_detector(tmp_path):
+    """Two drives' polar grids add up in one picture per camera x estimator x detector;
+    a job without vehicles adds nothing."""
+    from scenarios.suite_report import plot_recall_polar_pooled, pool_recall_polar
+
+    suite = suite_from_dict(
+        {
+            "name": "s",
+            "scenarios": ["highway-omni-near", "merge-omni-near"],
+            "detectors": ["hypotheses", "paper"],
+            "frames": 5,
+        },
+        where="s.yaml",
+    )
+    outcomes = []
+    for job in suite.jobs:
+        jdir = tmp_path / job.describe()["dir"]
+        jdir.mkdir(parents=True)
+        seen = 2 if job.scenario.name.startswith("highway") else 3
+        polar = {
+            "range_edges_m": [0.0, 5.0, 10.0],
+            "bearing_edges_deg": [-180.0, 0.0, 180.0],
+            "gt_count": [[seen, 0], [0, 4]],
+            "matched": [[1, 0], [0, 4]],
+        }
+        (jdir / "metrics.json").write_text(json.dumps({"surround": {"recall_polar": polar}}))
+        outcomes.append(Outcome(job, "ok", {}))
+    pooled = pool_recall_polar(tmp_path, outcomes)
+    assert set(pooled) == {("omni-near", "direct", "hypotheses"), ("omni-near", "direct", "paper")}
+    for grid in pooled.values():
+        assert grid["gt_count"].tolist() == [[5, 0], [0, 8]]
+        assert grid["matched"].tolist() == [[2, 0], [0, 8]]
+    made = plot_recall_polar_pooled(tmp_path, outcomes)
+    assert len(made) == 2 and all((tmp_path / name).stat().st_size > 0 for name, _ in made)
+    assert "paper" in made[1][1] and "hypotheses" in made[0][1]
