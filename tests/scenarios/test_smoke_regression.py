@@ -1,7 +1,7 @@
 """Regression test on detection recall: the `smoke` suite against its committed baseline.
 
-Runs scenarios/suites/smoke.yaml for real (18 short jobs: render, estimate, detect, track;
-~3 minutes on 2 cores) and fails, naming the job, the metric and the delta, when recall,
+Runs scenarios/suites/smoke.yaml for real (24 short jobs: render, estimate, detect, track;
+~4 minutes on 2 cores) and fails, naming the job, the metric and the delta, when recall,
 precision, MOTA, the speed, yaw-rate or A RMSE is worse than scenarios/baselines/smoke.json
 by more than `TOLERANCE`. A change that makes them worse on purpose updates the baseline on purpose:
 ``omnibench suite scenarios/suites/smoke.yaml --out DIR && omnibench baseline update DIR``.
@@ -36,7 +36,7 @@ def test_smoke_suite_holds_its_baseline(tmp_path: Path) -> None:
     errors = [f"{o.job.label}: {o.error}" for o in res.outcomes if o.status != "ok"]
     assert not errors, "smoke jobs failed:\n" + "\n".join(errors)
     # the recall guard stands on many vehicles: at least 5 distinct ones and 150
-    # vehicle-frames in the direct estimator's jobs (the dense exit brings most)
+    # vehicle-frames in the direct estimator's jobs (the dense drives bring most)
     direct = [
         json.loads((run_dir / o.job.describe()["dir"] / "metrics.json").read_text())
         for o in res.outcomes

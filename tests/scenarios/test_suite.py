@@ -35,7 +35,7 @@ def _suite(tmp_path: Path, **data) -> Path:
 @pytest.mark.parametrize(
     "name, jobs, drives",
     [
-        ("smoke", 18, 6),
+        ("smoke", 24, 8),
         ("paper", 12, 6),
         ("full", 45, 15),
         ("can-bias-sweep", 14, 7),
