@@ -356,15 +356,77 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
 
 
 # ------------------------------------------------------------------ where detection fails
-def _band(r_m: float, edges: Sequence[float]) -> str | None:
-    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        if lo <= r_m < hi:
-            return f"{lo:g}-{hi:g} m"
-    return None
+@dataclass
+class _Placed:
+    """Every vehicle and hypothesis of a sequence, relative to the camera foot, and whether
+    detection matched it: vehicles by their footprint point nearest the camera (G, 2),
+    found (G,), motion (G,) class; hypotheses by their own point (H, 2), matched (H,)."""
+
+    gt_xy: np.ndarray
+    found: np.ndarray
+    motion: list[str]
+    hyp_xy: np.ndarray
+    matched: np.ndarray
+
+    @staticmethod
+    def of(frames: Sequence[EvalFrame], cfg: MetricsConfig) -> _Placed:
+        _, matches = _match_all(frames, cfg)
+        gt_hit = {(k, r) for k, r, _ in matches}
+        hyp_hit = {(k, c) for k, _, c in matches}
+        cam = np.asarray(cfg.camera_xy, float)
+        gt = [(k, r, g) for k, f in enumerate(frames) for r, g in enumerate(f.gt)]
+        gt_xy = [nearest_footprint_point(g.footprint_xy, cam) - cam for _, _, g in gt]
+        hyp = [(k, c) for k, f in enumerate(frames) for c in range(len(f.hyp_xy))]
+        return _Placed(
+            np.asarray(gt_xy, float).reshape(-1, 2),
+            np.array([(k, r) in gt_hit for k, r, _ in gt], bool),
+            [g.motion for _, _, g in gt],
+            np.asarray([frames[k].hyp_xy[c] - cam for k, c in hyp], float).reshape(-1, 2),
+            np.array([(k, c) in hyp_hit for k, c in hyp], bool),
+        )
+
+
+def _range_m(xy: np.ndarray) -> np.ndarray:
+    return np.hypot(xy[:, 0], xy[:, 1])
+
+
+def _bearing_deg(xy: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arctan2(xy[:, 1], xy[:, 0]))
 
 
 def _ratio(num: int, den: int) -> float:
     return float(num / den) if den else NAN
+
+
+BAND_NAMES = [
+    f"{lo:g}-{hi:g} m" for lo, hi in zip(RANGE_BANDS_M[:-1], RANGE_BANDS_M[1:], strict=True)
+]
+
+
+def _band_labels(xy: np.ndarray) -> np.ndarray:
+    """(N,) range band name of points (N, 2) ("" beyond the bands)."""
+    i = np.digitize(_range_m(xy), RANGE_BANDS_M) - 1
+    names = np.array([*BAND_NAMES, ""], dtype=object)
+    return names[np.where((i >= 0) & (i < len(BAND_NAMES)), i, -1)]
+
+
+def _sector_labels(xy: np.ndarray) -> np.ndarray:
+    """(N,) sector name of points (N, 2)."""
+    return np.array([sector(b) for b in _bearing_deg(xy)], dtype=object)
+
+
+def _bins(placed: _Placed, names: Sequence[str], label_of) -> dict:
+    """Per name of a bin (label_of: (N, 2) points -> (N,) names): the vehicles' gt_count,
+    matched and recall, the hypotheses' hyp_count, hyp_matched and precision."""
+    gt_lab, hyp_lab = label_of(placed.gt_xy), label_of(placed.hyp_xy)
+    out = {}
+    for name in names:
+        g, h = gt_lab == name, hyp_lab == name
+        n, m = int(g.sum()), int((g & placed.found).sum())
+        hn, hm = int(h.sum()), int((h & placed.matched).sum())
+        out[name] = {"gt_count": n, "matched": m, "hyp_count": hn, "hyp_matched": hm}
+        out[name] |= {"recall": _ratio(m, n), "precision": _ratio(hm, hn)}
+    return out
 
 
 def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
@@ -379,48 +441,14 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     """
     cfg = config if config is not None else MetricsConfig()
     frames = list(frames)
-    _, matches = _match_all(frames, cfg)
-    gt_hit = {(k, r) for k, r, _ in matches}
-    hyp_hit = {(k, c) for k, _, c in matches}
-    cam = np.asarray(cfg.camera_xy, float)
-
-    def where(p: np.ndarray) -> tuple[str | None, str]:
-        d = p - cam
-        return _band(float(np.hypot(*d)), RANGE_BANDS_M), sector(
-            math.degrees(math.atan2(d[1], d[0]))
-        )
-
-    edges = RANGE_BANDS_M
-    names = [f"{lo:g}-{hi:g} m" for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
-    zero = {"gt_count": 0, "matched": 0, "hyp_count": 0, "hyp_matched": 0}
-    bands = {n: dict(zero) for n in names}
-    sectors = {n: dict(zero) for n in SECTORS}
-    motion = {n: {"gt_count": 0, "matched": 0} for n in (*MOTION_CLASSES, "unknown")}
-    for k, f in enumerate(frames):
-        for r, g in enumerate(f.gt):
-            band, sec = where(nearest_footprint_point(g.footprint_xy, cfg.camera_xy))
-            hit = (k, r) in gt_hit
-            for slot in ((bands.get(band) if band else None), sectors[sec]):
-                if slot is not None:
-                    slot["gt_count"] += 1
-                    slot["matched"] += hit
-            m = motion[g.motion or "unknown"]
-            m["gt_count"] += 1
-            m["matched"] += hit
-        for c, p in enumerate(f.hyp_xy):
-            band, sec = where(p)
-            hit = (k, c) in hyp_hit
-            for slot in ((bands.get(band) if band else None), sectors[sec]):
-                if slot is not None:
-                    slot["hyp_count"] += 1
-                    slot["hyp_matched"] += hit
-    for slot in (*bands.values(), *sectors.values()):
-        slot["recall"] = _ratio(slot["matched"], slot["gt_count"])
-        slot["precision"] = _ratio(slot["hyp_matched"], slot["hyp_count"])
-    for slot in motion.values():
-        slot["recall"] = _ratio(slot["matched"], slot["gt_count"])
-    if motion["unknown"]["gt_count"] == 0:
-        del motion["unknown"]
+    placed = _Placed.of(frames, cfg)
+    motion = {}
+    classes = np.array([m or "unknown" for m in placed.motion], dtype=object)
+    for name in MOTION_CLASSES + ("unknown",):
+        sel = classes == name
+        n, m = int(sel.sum()), int((sel & placed.found).sum())
+        if name != "unknown" or n:
+            motion[name] = {"gt_count": n, "matched": m, "recall": _ratio(m, n)}
     ego = {}
     for state, moving in (("moving", True), ("stopped", False)):
         sub = [f for f in frames if f.ego_moving == moving]
@@ -429,7 +457,12 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
             "frames": len(sub),
             **{key: m[key] for key in ("detection", "tracking", "localization")},
         }
-    return {"range_bands": bands, "sectors": sectors, "motion": motion, "ego_state": ego}
+    return {
+        "range_bands": _bins(placed, BAND_NAMES, _band_labels),
+        "sectors": _bins(placed, SECTORS, _sector_labels),
+        "motion": motion,
+        "ego_state": ego,
+    }
 
 
 def recall_polar(
@@ -442,20 +475,11 @@ def recall_polar(
     "gt_count" (R, B), "matched" (R, B)} as lists; vehicles placed by their footprint
     point nearest the camera, bearing 0 ahead, +90 left."""
     cfg = config if config is not None else MetricsConfig()
-    frames = list(frames)
-    _, matches = _match_all(frames, cfg)
-    hit = {(k, r) for k, r, _ in matches}
-    rs, bs, found = [], [], []
-    for k, f in enumerate(frames):
-        for r, g in enumerate(f.gt):
-            d = nearest_footprint_point(g.footprint_xy, cfg.camera_xy) - cfg.camera_xy
-            rs.append(float(np.hypot(*d)))
-            bs.append(math.degrees(math.atan2(d[1], d[0])))
-            found.append((k, r) in hit)
+    placed = _Placed.of(list(frames), cfg)
     edges = (np.asarray(range_edges_m, float), np.asarray(bearing_edges_deg, float))
-    rs_a, bs_a, found_a = np.asarray(rs), np.asarray(bs), np.asarray(found, bool)
-    gt_n = np.histogram2d(rs_a, bs_a, edges)[0]
-    hit_n = np.histogram2d(rs_a[found_a], bs_a[found_a], edges)[0]
+    r, b, hit = _range_m(placed.gt_xy), _bearing_deg(placed.gt_xy), placed.found
+    gt_n = np.histogram2d(r, b, edges)[0]
+    hit_n = np.histogram2d(r[hit], b[hit], edges)[0]
     return {
         "range_edges_m": edges[0].tolist(),
         "bearing_edges_deg": edges[1].tolist(),
@@ -472,21 +496,13 @@ def _recall_by(
     key,
 ) -> dict:
     cfg = config if config is not None else MetricsConfig()
-    frames = list(frames)
     edges = np.asarray(bin_edges, dtype=float)
     if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):
         raise ValueError(f"bin edges must be 1-D, increasing, >= 2 values, got {edges}")
-    _, matches = _match_all(frames, cfg)
-    hit = {(k, r) for k, r, _ in matches}
-    values, found = [], []
-    for k, f in enumerate(frames):
-        for r, g in enumerate(f.gt):
-            p = nearest_footprint_point(g.footprint_xy, cfg.camera_xy) - cfg.camera_xy
-            values.append(key(p))
-            found.append((k, r) in hit)
-    values_a, found_a = np.asarray(values, dtype=float), np.asarray(found, dtype=bool)
-    gt_n = np.histogram(values_a, edges)[0] if values_a.size else np.zeros(edges.size - 1, int)
-    hit_n = np.histogram(values_a[found_a], edges)[0] if found_a.any() else np.zeros_like(gt_n)
+    placed = _Placed.of(list(frames), cfg)
+    values, found = key(placed.gt_xy), placed.found
+    gt_n = np.histogram(values, edges)[0]
+    hit_n = np.histogram(values[found], edges)[0]
     with np.errstate(invalid="ignore", divide="ignore"):
         rec = np.where(gt_n > 0, hit_n / np.maximum(gt_n, 1), np.nan)
     return {
@@ -505,7 +521,7 @@ def recall_by_range(
     Returns {"bin_edges", "gt_count", "matched", "recall"} (lists, one entry per
     bin; recall NaN for an empty bin). Vehicles outside the edges are not counted.
     """
-    return _recall_by(frames, bin_edges_m, config, lambda p: float(np.hypot(*p)))
+    return _recall_by(frames, bin_edges_m, config, _range_m)
 
 
 def recall_by_bearing(
@@ -518,4 +534,4 @@ def recall_by_bearing(
     Bearing = atan2(y, x) around the camera foot in (-180, 180]: 0 ahead, +90
     left, -90 right, ±180 behind. Same return layout as `recall_by_range`.
     """
-    return _recall_by(frames, bin_edges_deg, config, lambda p: math.degrees(math.atan2(p[1], p[0])))
+    return _recall_by(frames, bin_edges_deg, config, _bearing_deg)

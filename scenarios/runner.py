@@ -27,7 +27,7 @@ from estimator.pipeline import write_egomotion_csv
 from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
 from estimator.surround.analyzer import SurroundAnalyzer
-from estimator.surround.detection import DETECTOR_METHODS, DetectorConfig
+from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS, DetectorConfig
 from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import (
@@ -112,7 +112,7 @@ def run_scenario(
     max_frames: int | None = None,
     video: bool = True,
     road_mask: str | None = None,
-    detector: str = "hypotheses",
+    detector: str = DEFAULT_DETECTOR,
 ) -> dict:
     """Render (resuming), estimate, detect, track and measure one scenario.
 

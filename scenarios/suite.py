@@ -50,6 +50,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS
 from scenarios.config import (
     LIBRARY_DIR,
     Scenario,
@@ -59,8 +60,6 @@ from scenarios.config import (
     scenario_from_dict,
 )
 from sim.scenario import format_errors
-
-DEFAULT_DETECTOR = "hypotheses"  # `estimator.surround.detection.DetectorConfig.method`
 
 SUITES_DIR = Path(__file__).parent / "suites"
 REPO_DIR = Path(__file__).resolve().parents[1]
@@ -173,8 +172,6 @@ class SuiteSpec(_Strict):
     @field_validator("detectors")
     @classmethod
     def _detectors(cls, v: list[str]) -> list[str]:
-        from estimator.surround.detection import DETECTOR_METHODS
-
         for d in v:
             if d not in DETECTOR_METHODS:
                 raise ValueError(f"unknown detector {d!r}; known: {list(DETECTOR_METHODS)}")
@@ -252,7 +249,7 @@ class Job:
     frames: int  # effective frame count
     render_key: str
     video: bool = True
-    detector: str = "hypotheses"  # `DEFAULT_DETECTOR` or another surround detector
+    detector: str = DEFAULT_DETECTOR  # or another of `DETECTOR_METHODS`
 
     @property
     def label(self) -> str:
@@ -337,7 +334,7 @@ def camera_label(spec: str | dict[str, Any]) -> str:
 
 
 def job_id_for(
-    scenario: Scenario, estimator: str, frames: int, detector: str = "hypotheses"
+    scenario: Scenario, estimator: str, frames: int, detector: str = DEFAULT_DETECTOR
 ) -> str:
     """A job's stable id; the default detector is left out of the hash, so that jobs
     named before detectors could be chosen keep their ids."""

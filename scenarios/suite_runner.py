@@ -119,7 +119,7 @@ def job_task(task: dict[str, Any]) -> dict[str, Any]:
                     scenario_from_dict(task["scenario"]),
                     out,
                     estimator=task["estimator"],
-                    detector=task.get("detector", "hypotheses"),
+                    detector=task["detector"],
                     drive_dir=Path(task["drive_dir"]),
                     progress=False,
                     max_frames=task["frames"],

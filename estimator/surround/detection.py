@@ -93,7 +93,8 @@ from estimator.egomotion.homography import homography_parts
 from estimator.geometry import skew
 from estimator.surround.planview import PlanView, pixel_road_xy
 
-DETECTOR_METHODS = ("hypotheses", "paper")  # `DetectorConfig.method`
+DEFAULT_DETECTOR = "hypotheses"  # `DetectorConfig.method` by default
+DETECTOR_METHODS = (DEFAULT_DETECTOR, "paper")  # `DetectorConfig.method`
 
 
 @dataclass(frozen=True)
@@ -106,7 +107,7 @@ class DetectorConfig:
     # "hypotheses": the motion-hypothesis test below (the default); "paper": the paper's
     # section 5 as written, eq. 22 thresholded, plan view, 1 x N closing, blobs, nearest
     # point (no height test, no refinement, no hidden-ground handling), a baseline
-    method: str = "hypotheses"
+    method: str = DEFAULT_DETECTOR
     # temporal baseline and working resolution
     baseline_frames: int = 2  # [frames] the current frame is compared with the one n before
     scale: int = 2  # [-] working resolution = full / scale (1 or 2; pyrDown)
@@ -525,10 +526,13 @@ class VehicleDetector:
             smooth = np.nanmedian(windows, axis=1)
         return np.where(np.isfinite(smooth), smooth, 0.0)
 
-    def inner_edge_range(self, bearing_rad: float) -> float:
+    def _edge_bin(self, bearing_rad: float) -> int:
+        """Index of the bearing's bin in `_inner` (and `_edge_px_per_rad`)."""
         nb = len(self._inner)
-        i = int((bearing_rad + np.pi) / (2 * np.pi) * nb) % nb
-        return float(self._inner[i])
+        return int((bearing_rad + np.pi) / (2 * np.pi) * nb) % nb
+
+    def inner_edge_range(self, bearing_rad: float) -> float:
+        return float(self._inner[self._edge_bin(bearing_rad)])
 
     # ------------------------------------------------------------------ images
     def prepare(self, gray: np.ndarray) -> np.ndarray:
@@ -604,21 +608,11 @@ class VehicleDetector:
             moving |= (up > cfg.score_threshold) & ok
             score = np.maximum(score, up)
         # 3. plan view, closing along the motion, blobs, obstacle map
-        plan = cv2.remap(
-            moving.astype(np.uint8) * 255,
-            self._pmx,
-            self._pmy,
-            cv2.INTER_NEAREST,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=0,
-        )
+        plan = self._plan_mask(moving)
         tall = self._tall_parts(plan)
         plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
         cands = self._blobs(plan, tall)
-        for c in cands:  # motion score at the blob's nearest point (working scale)
-            qu = int(np.clip(round((c.pixel[0] + 0.5) / s - 0.5), 0, score.shape[1] - 1))
-            qv = int(np.clip(round((c.pixel[1] + 0.5) / s - 0.5), 0, score.shape[0] - 1))
-            c.score = float(score[qv, qu])
+        self._set_scores(cands, score)
         if cfg.refine and current_full is not None and earlier_full is not None:
             near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
             for c in cands:
@@ -630,10 +624,7 @@ class VehicleDetector:
                         Hs,
                         near,
                     )
-        cands = [
-            c for c in cands if cfg.min_range_m <= float(np.hypot(c.x_m, c.y_m)) <= cfg.max_range_m
-        ]
-        cands = self._merge_close(cands)
+        cands = self._in_range_merged(cands)
         # 4. full-resolution pictures (display)
         w1 = warped[1.0]
 
@@ -648,28 +639,14 @@ class VehicleDetector:
         """Section 5 as the paper writes it: the road-compensated difference (eq. 22)
         thresholded, the flat-plane transform, a 1 x N closing, blobs, and each blob's
         point nearest the camera taken as on the road."""
-        cfg, s = self.cfg, self.cfg.scale
-        ndv = normalized_difference(a, w1, cfg.nd_k, max(3, cfg.nd_kernel_px // s), ok)
+        cfg = self.cfg
+        ndv = normalized_difference(a, w1, cfg.nd_k, max(3, cfg.nd_kernel_px // cfg.scale), ok)
         moving = (np.abs(ndv) > cfg.nd_threshold_px) & ok
-        plan = cv2.remap(
-            moving.astype(np.uint8) * 255,
-            self._pmx,
-            self._pmy,
-            cv2.INTER_NEAREST,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=0,
-        )
-        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
+        plan = cv2.morphologyEx(self._plan_mask(moving), cv2.MORPH_CLOSE, self._close_kernel)
         cands = self._blobs(plan, None, obstacle_map_only=True)
         score = np.abs(ndv) * (cfg.score_threshold / cfg.nd_threshold_px)
-        for c in cands:
-            qu = int(np.clip(round((c.pixel[0] + 0.5) / s - 0.5), 0, score.shape[1] - 1))
-            qv = int(np.clip(round((c.pixel[1] + 0.5) / s - 0.5), 0, score.shape[0] - 1))
-            c.score = float(score[qv, qu])
-        cands = [
-            c for c in cands if cfg.min_range_m <= float(np.hypot(c.x_m, c.y_m)) <= cfg.max_range_m
-        ]
-        cands = self._merge_close(cands)
+        self._set_scores(cands, score)
+        cands = self._in_range_merged(cands)
         return DetectionFrame(
             list(cands),
             lambda: ndv,
@@ -679,6 +656,33 @@ class VehicleDetector:
             score,
             (self.camera.width, self.camera.height),
         )
+
+    def _plan_mask(self, moving: np.ndarray) -> np.ndarray:
+        """(S, S) uint8 plan view (flat-plane transform) of a working-scale motion mask."""
+        return cv2.remap(
+            moving.astype(np.uint8) * 255,
+            self._pmx,
+            self._pmy,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+
+    def _set_scores(self, cands: list[Detection], score: np.ndarray) -> None:
+        """Each candidate's score: the working-scale score (h, w) at its nearest point."""
+        s = self.cfg.scale
+        for c in cands:
+            qu = int(np.clip(round((c.pixel[0] + 0.5) / s - 0.5), 0, score.shape[1] - 1))
+            qv = int(np.clip(round((c.pixel[1] + 0.5) / s - 0.5), 0, score.shape[0] - 1))
+            c.score = float(score[qv, qu])
+
+    def _in_range_merged(self, cands: list[Detection]) -> list[Detection]:
+        """The candidates within min_range_m..max_range_m, those of one vehicle merged."""
+        cfg = self.cfg
+        near = [
+            c for c in cands if cfg.min_range_m <= float(np.hypot(c.x_m, c.y_m)) <= cfg.max_range_m
+        ]
+        return self._merge_close(near)
 
     def _merge_close(self, cands: list[Detection]) -> list[Detection]:
         """One detection per vehicle: points within cluster_m (after refinement, two
@@ -963,8 +967,7 @@ class VehicleDetector:
                     bearing = float(np.arctan2(np.sin(b).mean(), np.cos(b).mean()))
                     rel = np.angle(np.exp(1j * (b - bearing)))
                     edge_r = self.inner_edge_range(bearing)
-                    nb = len(self._inner)
-                    dens = self._edge_px_per_rad[int((bearing + np.pi) / (2 * np.pi) * nb) % nb]
+                    dens = self._edge_px_per_rad[self._edge_bin(bearing)]
                     shrink = cfg.hidden_arc_shrink_px / dens if dens > 0 else 0.0
                     xy = hidden_box_nearest_point(
                         bearing + rel.min() + shrink,
