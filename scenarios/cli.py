@@ -178,6 +178,9 @@ def run(
     detector: str = typer.Option(
         "hypotheses", help="surround detector: hypotheses | paper (section 5 as written)"
     ),
+    vehicle_mask: str | None = typer.Option(
+        None, help="'gt': give the detector the true vehicle pixels (a diagnostic ceiling)"
+    ),
 ) -> None:
     """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
     from estimator.egomotion.baselines import check_estimator
@@ -191,6 +194,8 @@ def run(
             raise ValueError(f"--frames {frames}: must be >= 1")
         if road_mask not in (None, "gt"):
             raise ValueError(f"--road-mask {road_mask!r}: the only choice is 'gt'")
+        if vehicle_mask not in (None, "gt"):
+            raise ValueError(f"--vehicle-mask {vehicle_mask!r}: the only choice is 'gt'")
     except ValueError as e:
         _fail(str(e))
 
@@ -201,7 +206,13 @@ def run(
     try:
         sc = load_scenario(scenario)
         m = run_scenario(
-            sc, out, estimator=estimator, max_frames=frames, road_mask=road_mask, detector=detector
+            sc,
+            out,
+            estimator=estimator,
+            max_frames=frames,
+            road_mask=road_mask,
+            detector=detector,
+            vehicle_mask=vehicle_mask,
         )
     except (ScenarioError, DriveError, ValueError) as e:
         _fail(str(e))

@@ -69,6 +69,12 @@ def gt_road_mask(
     return z < max_height_m
 
 
+def gt_vehicle_mask(drive_dir: Path, frame: int) -> np.ndarray:
+    """(H, W) bool: pixels of ``frame`` that see another vehicle (id image; not the ego car)."""
+    ids = read_png(Path(drive_dir) / "ids" / f"{frame:06d}.png").astype(np.int64) - 1
+    return ids > 0  # -1: no vehicle, 0: the ego car
+
+
 def points_above_road(
     drive_dir: Path,
     camera: CameraModel,

@@ -47,7 +47,13 @@ from scenarios.metrics import (
     plot_ego_errors,
     read_egomotion_csv,
 )
-from scenarios.point_audit import PullMap, camera_unit_rays, gt_road_mask, points_above_road
+from scenarios.point_audit import (
+    PullMap,
+    camera_unit_rays,
+    gt_road_mask,
+    gt_vehicle_mask,
+    points_above_road,
+)
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from sim.drive import load_groundtruth, render_drive
@@ -113,6 +119,7 @@ def run_scenario(
     video: bool = True,
     road_mask: str | None = None,
     detector: str = DEFAULT_DETECTOR,
+    vehicle_mask: str | None = None,
 ) -> dict:
     """Render (resuming), estimate, detect, track and measure one scenario.
 
@@ -120,8 +127,12 @@ def run_scenario(
     within ``MIN_HEIGHT_M`` of the road, from the range images): the speed it then
     reaches is what a perfect road segmentation would allow, a diagnostic ceiling.
     detector: the surround detector, `DetectorConfig.method` ("hypotheses" or "paper").
-    The cheap inputs (estimator, max_frames, road_mask, detector) are checked before any
-    rendering.
+    vehicle_mask: ``"gt"`` gives the detector each frame's true vehicle pixels (id
+    images) instead of its motion test: the figures it then reaches are what the plan
+    view, the obstacle map and the tracker allow with a perfect segmentation, a
+    diagnostic ceiling.
+    The cheap inputs (estimator, max_frames, road_mask, detector, vehicle_mask) are
+    checked before any rendering.
     """
     check_estimator(estimator)
     if detector not in DETECTOR_METHODS:
@@ -130,6 +141,8 @@ def run_scenario(
         raise ValueError(f"max_frames must be >= 1 (or None: every frame), got {max_frames}")
     if road_mask not in (None, "gt"):
         raise ValueError(f"road_mask must be 'gt' or None, got {road_mask!r}")
+    if vehicle_mask not in (None, "gt"):
+        raise ValueError(f"vehicle_mask must be 'gt' or None, got {vehicle_mask!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     drive_dir = Path(drive_dir) if drive_dir is not None else out_dir / "drive"
@@ -158,7 +171,11 @@ def run_scenario(
             t0 = time.perf_counter()  # the estimator's time, without the truth's mask
             rec = est.step(image, t, can.at(t), road_mask=given)
             t1 = time.perf_counter()
-            sf = surround.step(k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps)
+            vmask = gt_vehicle_mask(drive_dir, k) if vehicle_mask else None
+            t1 = time.perf_counter()
+            sf = surround.step(
+                k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps, vehicle_mask=vmask
+            )
             t2 = time.perf_counter()
             if k > 0:
                 t_est.append(t1 - t0)
@@ -238,6 +255,7 @@ def run_scenario(
         "estimator": estimator,
         "detector": detector,
         "road_mask": road_mask or "none",
+        "vehicle_mask": vehicle_mask or "none",
         "frames": drive.n_frames,
         "ego": {**ego_metrics(series), **ego_consistency(records, gt, mount)},
         "detection": det_m["detection"],

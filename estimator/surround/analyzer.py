@@ -119,9 +119,12 @@ class SurroundAnalyzer:
         dt_s: float,
         speed_mps: float,
         yaw_rate_rps: float,
+        vehicle_mask: np.ndarray | None = None,
     ) -> SurroundFrame | None:
         """Analyse ``image`` given the estimate x (9,) of the motion since the last call.
 
+        vehicle_mask: (H, W) bool, the pixels that see a vehicle, given instead of the
+        detector's motion test (a diagnostic ceiling, `VehicleDetector.detect`).
         Returns None for the first frame (nothing to compare with).
         """
         gray = to_gray(image)
@@ -140,7 +143,9 @@ class SurroundAnalyzer:
             return None
         self._steps.append((np.asarray(x, float).copy(), float(dt_s)))
         steps = list(self._steps)[-(len(self._frames) - 1) :]
-        det = self.detector.detect(small, self._frames[0], steps, gray, self._full[0])
+        det = self.detector.detect(
+            small, self._frames[0], steps, gray, self._full[0], vehicle_mask=vehicle_mask
+        )
         cands = det.candidates
         xy = np.array([[d.x_m, d.y_m] for d in cands]).reshape(-1, 2)
         self.tracker.step(

@@ -547,6 +547,7 @@ class VehicleDetector:
         steps: Sequence[tuple[np.ndarray, float]],
         current_full: np.ndarray | None = None,
         earlier_full: np.ndarray | None = None,
+        vehicle_mask: np.ndarray | None = None,
     ) -> DetectionFrame:
         """Detect in ``current`` against ``earlier`` (both from `prepare`).
 
@@ -554,6 +555,9 @@ class VehicleDetector:
         one, oldest first (x: the paper's state, docs/CONVENTIONS.md).
         current_full, earlier_full: the same frames at full resolution (grey), for the
         refinement of the nearest points (skipped without them).
+        vehicle_mask: (H, W) bool, full resolution: the pixels that see a vehicle, given
+        instead of the motion test (a diagnostic: with the true mask, what the plan view,
+        the obstacle map and the tracker reach with a perfect segmentation).
         """
         cfg = self.cfg
         s = cfg.scale
@@ -581,6 +585,8 @@ class VehicleDetector:
         # 2. motion score at the working scale and one level coarser
         K = cfg.window_px / s
         sigma = cfg.registration_sigma_px / s
+        if vehicle_mask is not None:
+            return self._detect_given(a, vehicle_mask, ok, current_full, earlier_full, Hs)
         score = self._score(a, warped, ok, K, cfg.energy_k, sigma)
         moving = (score > cfg.score_threshold) & ok
         # ego (nearly) stopped: no static hypothesis explains the pixel (eq. 22's test)
@@ -633,6 +639,47 @@ class VehicleDetector:
 
         return DetectionFrame(
             list(cands), nd, moving, plan, cands, score, (self.camera.width, self.camera.height)
+        )
+
+    def _detect_given(
+        self,
+        a: np.ndarray,
+        vehicle_mask: np.ndarray,
+        ok: np.ndarray,
+        current_full: np.ndarray | None,
+        earlier_full: np.ndarray | None,
+        maps: dict[float, tuple[np.ndarray, np.ndarray]],
+    ) -> DetectionFrame:
+        """Steps 3-4 of `detect` on a given full-resolution vehicle mask (H, W) bool; the
+        refinement takes the mask's own lower outline (every masked pixel is an edge that
+        moves)."""
+        cfg = self.cfg
+        full = np.asarray(vehicle_mask, bool)
+        moving = (
+            cv2.resize(full.astype(np.uint8), a.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        ) & ok
+        score = moving.astype(np.float32)
+        plan = self._plan_mask(moving)
+        tall = self._tall_parts(plan)
+        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
+        cands = self._blobs(plan, tall)
+        self._set_scores(cands, score)
+        if cfg.refine and current_full is not None and earlier_full is not None:
+            near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
+            cur = np.asarray(current_full, np.float32)
+            early = np.asarray(earlier_full, np.float32)
+            for c in cands:
+                if not c.hidden:
+                    self._refine(c, cur, early, maps, near, given=full)
+        cands = self._in_range_merged(cands)
+        return DetectionFrame(
+            list(cands),
+            lambda: score,
+            moving,
+            plan,
+            cands,
+            score,
+            (self.camera.width, self.camera.height),
         )
 
     def _detect_paper(self, a: np.ndarray, w1: np.ndarray, ok: np.ndarray) -> DetectionFrame:
@@ -704,6 +751,7 @@ class VehicleDetector:
         early: np.ndarray,
         maps: dict[float, tuple[np.ndarray, np.ndarray]],
         near_moving: np.ndarray,
+        given: np.ndarray | None = None,
     ) -> None:
         """Move the detection to the nearest full-resolution edge that moves independently.
 
@@ -746,10 +794,14 @@ class VehicleDetector:
                 borderMode=cv2.BORDER_CONSTANT,
             )
         ok = np.ones(shape, bool)
-        m = self._score(a, warped, ok, 3.0, cfg.energy_k, cfg.registration_sigma_px, box=True)
-        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-        edge = (gu * gu + gv * gv) >= cfg.refine_min_gradient**2
+        if given is not None:  # a given vehicle mask: its pixels are the moving edges
+            m = given[r0:r1, c0:c1].astype(np.float32)
+            edge = np.ones(shape, bool)
+        else:
+            m = self._score(a, warped, ok, 3.0, cfg.energy_k, cfg.registration_sigma_px, box=True)
+            gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+            gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+            edge = (gu * gu + gv * gv) >= cfg.refine_min_gradient**2
         # within the working-scale moving region (dilated), and a road ray
         mov = (
             cv2.remap(

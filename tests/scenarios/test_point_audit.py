@@ -14,6 +14,7 @@ from scenarios.point_audit import (
     PullMap,
     camera_unit_rays,
     gt_road_mask,
+    gt_vehicle_mask,
     height_map,
     points_above_road,
 )
@@ -98,6 +99,30 @@ def test_run_refuses_an_unknown_road_mask(tmp_path: Path):
 
     with pytest.raises(ValueError, match="road_mask must be 'gt' or None, got 'seg'"):
         run_scenario(load_scenario("highway-omni-near"), tmp_path, road_mask="seg")
+
+
+def test_gt_vehicle_mask_is_every_vehicle_but_the_ego_car(tmp_path: Path):
+    """Id images hold id + 1 (0: no vehicle, 1: the ego car, which the camera sees)."""
+    ids = np.zeros((4, 5), np.uint16)
+    ids[0, :2] = 1  # the ego car's body
+    ids[2, 1:4] = 3  # vehicle 2
+    ids[3, 4] = 8  # vehicle 7
+    (tmp_path / "ids").mkdir()
+    write_png(tmp_path / "ids" / "000004.png", ids)
+    mask = gt_vehicle_mask(tmp_path, 4)
+    assert mask.dtype == bool and mask.sum() == 4
+    assert mask[2, 1:4].all() and mask[3, 4] and not mask[0].any()
+    with pytest.raises(FileNotFoundError, match="000005.png"):
+        gt_vehicle_mask(tmp_path, 5)
+
+
+def test_run_refuses_an_unknown_vehicle_mask(tmp_path: Path):
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    with pytest.raises(ValueError, match="vehicle_mask must be 'gt' or None, got 'ids'"):
+        run_scenario(load_scenario("highway-omni-near"), tmp_path, vehicle_mask="ids")
+    assert not (tmp_path / "drive").exists()  # refused before anything renders
 
 
 def _road_pixel(camera, mount, forward_m: float, left_m: float) -> np.ndarray:

@@ -253,3 +253,41 @@ def test_paper_method_finds_what_the_road_homography_does_not_explain():
     assert not det.detect(road, early, [(X_HIGHWAY, DT)]).candidates
     with pytest.raises(ValueError, match="method"):
         DetectorConfig(method="nearest")
+
+
+def _box_silhouette(cam, mount, centre_xy, size_m=(4.7, 1.9), z_m=(0.15, 1.5)):
+    """(H, W) bool: pixels whose ray meets an axis-aligned box standing on the road
+    (centre (x fwd, y left) [m] in the ego road frame), by the slab method."""
+    rays = cam.pixel_rays().reshape(-1, 3).astype(float) @ np.asarray(mount.R_car_cam).T
+    o = np.asarray(mount.position_m, float)
+    c = np.r_[np.asarray(centre_xy, float) + o[:2], 0.5 * sum(z_m)]
+    half = np.r_[0.5 * np.asarray(size_m), 0.5 * (z_m[1] - z_m[0])]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (c - half - o) / rays
+        t1 = (c + half - o) / rays
+    near = np.nanmax(np.minimum(t0, t1), axis=1)
+    far = np.nanmin(np.maximum(t0, t1), axis=1)
+    hit = (far >= near) & (far > 0)
+    return hit.reshape(cam.height, cam.width) & cam.valid_mask()
+
+
+def test_given_vehicle_mask_replaces_the_motion_test():
+    """A true vehicle mask (the silhouette of a car-sized box 12 m ahead, 4 m left) on
+    frames without any motion: the detection lies at the box's point nearest the
+    camera (the obstacle map of a perfect segmentation); an empty mask finds nothing."""
+    cam, mount = load_camera("omni-near")
+    det = VehicleDetector(cam, mount)
+    s = det.cfg.scale
+    full = _textured((cam.height, cam.width), 3).astype(np.float32)
+    small = cv2.pyrDown(full)
+    mask = _box_silhouette(cam, mount, (12.0, 4.0))
+    assert mask.sum() > 200
+    steps = [(X_HIGHWAY, DT)] * det.cfg.baseline_frames
+    found = det.detect(small, small, steps, full, full, vehicle_mask=mask)
+    assert len(found.candidates) == 1
+    (c,) = found.candidates
+    nearest = np.array([12.0 - 2.35, 4.0 - 0.95])
+    assert np.hypot(c.x_m - nearest[0], c.y_m - nearest[1]) < 0.5  # [m]
+    assert found.motion_mask.shape == (cam.height, cam.width) and s in (1, 2)
+    empty = det.detect(small, small, steps, full, full, vehicle_mask=np.zeros_like(mask))
+    assert not empty.candidates
