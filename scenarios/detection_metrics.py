@@ -144,14 +144,17 @@ class GtVehicle:
 @dataclass
 class EvalFrame:
     """One frame: ground truth (evaluation set), hypotheses (id, x [m], y [m]) and whether
-    the ego car moves (`EGO_MOVING_MPS`)."""
+    the ego car moves (`EGO_MOVING_MPS`); optionally each hypothesis's box centre (x, y)
+    [m] (NaN where it has no box), empty when none has one."""
 
     gt: Sequence[GtVehicle]
     hypotheses: Sequence[tuple[int, float, float]] = ()
     t_s: float = NAN
     ego_moving: bool = True
+    centres: Sequence[tuple[float, float]] = ()
     hyp_ids: np.ndarray = field(init=False, repr=False)
     hyp_xy: np.ndarray = field(init=False, repr=False)
+    hyp_centre_xy: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.gt = list(self.gt)
@@ -160,6 +163,10 @@ class EvalFrame:
         self.hyp_xy = np.array([[float(r[1]), float(r[2])] for r in h]).reshape(-1, 2)
         if not np.all(np.isfinite(self.hyp_xy)):
             raise ValueError(f"frame t={self.t_s}: hypothesis positions must be finite: {h}")
+        c = np.array(list(self.centres), float).reshape(-1, 2)
+        if len(c) not in (0, len(h)):
+            raise ValueError(f"frame t={self.t_s}: {len(c)} box centres for {len(h)} hypotheses")
+        self.hyp_centre_xy = c if len(c) else np.full((len(h), 2), NAN)
         gt_ids = [g.id for g in self.gt]
         for name, ids in (("ground-truth", gt_ids), ("hypothesis", self.hyp_ids.tolist())):
             if len(set(ids)) != len(ids):
@@ -272,7 +279,8 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
 
     Returns ``{"gate_m", "counts", "detection": {"recall", "precision", "gt_count",
     "matched"}, "tracking": {"mota", "idf1", "hota", "id_switches"},
-    "localization": {"median_error_m", "p90_error_m"}, "nan_reasons"}`` with
+    "localization": {"median_error_m", "p90_error_m", "centre_median_error_m",
+    "centre_p90_error_m"}, "nan_reasons"}`` with
     plain Python numbers (JSON-ready). ``nan_reasons`` maps "section.metric" to
     why that metric is NaN.
     """
@@ -312,6 +320,23 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "no matched hypothesis"
         )
 
+    # box centres: matched hypotheses that have one, to the footprint's centre
+    centre_err = np.array(
+        [
+            float(np.linalg.norm(frames[k].hyp_centre_xy[c] - frames[k].gt[r].footprint_xy.mean(0)))
+            for k, r, c in matches
+            if np.all(np.isfinite(frames[k].hyp_centre_xy[c]))
+        ]
+    )
+    if centre_err.size:
+        centre_med = float(np.median(centre_err))
+        centre_p90 = float(np.percentile(centre_err, 90))
+    else:
+        centre_med = centre_p90 = NAN
+        reasons["localization.centre_median_error_m"] = reasons[
+            "localization.centre_p90_error_m"
+        ] = "no matched hypothesis with a box"
+
     mot = {"mota": NAN, "idf1": NAN, "num_switches": 0, "num_matches": 0}
     mot |= {"num_false_positives": hyp_count, "num_misses": 0}
     hota = NAN
@@ -337,6 +362,7 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "mot_false_positives": int(mot["num_false_positives"]),
             "mot_misses": int(mot["num_misses"]),
             "localization_pairs": int(errors.size),
+            "centre_pairs": int(centre_err.size),
         },
         "detection": {
             "recall": recall,
@@ -350,7 +376,12 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "hota": hota,
             "id_switches": int(mot["num_switches"]),
         },
-        "localization": {"median_error_m": median_err, "p90_error_m": p90_err},
+        "localization": {
+            "median_error_m": median_err,
+            "p90_error_m": p90_err,
+            "centre_median_error_m": centre_med,
+            "centre_p90_error_m": centre_p90,
+        },
         "nan_reasons": reasons,
     }
 

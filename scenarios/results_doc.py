@@ -35,6 +35,7 @@ DETECTION_COLUMNS = (
     ("tracking.idf1", "IDF1", "{:.2f}"),
     ("tracking.hota", "HOTA", "{:.2f}"),
     ("localization.median_error_m", "median position error [m]", "{:.2f}"),
+    ("localization.centre_median_error_m", "median box-centre error [m]", "{:.2f}"),
 )
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import io as _io
 import json
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -192,15 +193,18 @@ def run_scenario(
             gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
             moving = gt[k]["ego"]["speed_mps"] > EGO_MOVING_MPS
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
-            eval_det.append(EvalFrame(gt_set, dets, t, moving))
+            det_boxes = [d.box for d in sf.detection.detections]
+            eval_det.append(EvalFrame(gt_set, dets, t, moving, _centres(det_boxes)))
             trk = [(tr.id, float(tr.x[0]), float(tr.x[1])) for tr in sf.tracks]
-            eval_trk.append(EvalFrame(gt_set, trk, t, moving))
-            for tr in sf.tracks:
+            trk_boxes = [surround.track_box(tr) for tr in sf.tracks]
+            eval_trk.append(EvalFrame(gt_set, trk, t, moving, _centres(trk_boxes)))
+            for tr, box in zip(sf.tracks, trk_boxes, strict=True):
                 P = tr.P
                 track_rows.append(
                     (k, t, tr.id, *(float(v) for v in tr.x[:4]))
                     + (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
                     + (float(P[2, 2]), float(P[2, 3]), float(P[3, 3]))
+                    + _box_fields(box)
                 )
             if writer is not None or k == still_k:
                 panel = _panels(
@@ -315,7 +319,20 @@ def _panels(image, rec, sf, camera, mount, surround: SurroundAnalyzer, gt_xy) ->
 TRACKS_CSV_COLUMNS = (
     "frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps",
     "var_x_m2", "cov_xy_m2", "var_y_m2", "var_vx_m2ps2", "cov_vxvy_m2ps2", "var_vy_m2ps2",
+    "box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m",
 )  # fmt: skip
+
+
+def _box_fields(box) -> tuple[float, float, float, float, float]:
+    """(x, y, yaw, length, width) of a `Box`; NaN for None."""
+    if box is None:
+        return (math.nan,) * 5
+    return (box.x_m, box.y_m, box.yaw_rad, box.length_m, box.width_m)
+
+
+def _centres(boxes: list) -> list[tuple[float, float]]:
+    """Box centres (x, y) [m], NaN where a hypothesis has no box."""
+    return [_box_fields(b)[:2] for b in boxes]
 
 
 def _write_tracks_csv(path: Path, rows: list[tuple]) -> None:
@@ -324,7 +341,10 @@ def _write_tracks_csv(path: Path, rows: list[tuple]) -> None:
     w.writerow(TRACKS_CSV_COLUMNS)
     for r in rows:
         w.writerow(
-            [r[0], f"{r[1]:.4f}", r[2]] + [f"{v:.3f}" for v in r[3:7]] + [f"{v:.4g}" for v in r[7:]]
+            [r[0], f"{r[1]:.4f}", r[2]]
+            + [f"{v:.3f}" for v in r[3:7]]
+            + [f"{v:.4g}" for v in r[7:13]]
+            + [f"{v:.3f}" for v in r[13:18]]
         )
     write_text(path, buf.getvalue())
 

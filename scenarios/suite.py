@@ -103,6 +103,7 @@ KNOWN_METRICS = (
     "tracking.id_switches",
     "localization.median_error_m",
     "localization.p90_error_m",
+    "localization.centre_median_error_m",
     "compensation.ratio",
     "compensation.road_rms",
     "compensation.road_rms_gt",

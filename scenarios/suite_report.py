@@ -55,6 +55,7 @@ TABLE_METRICS = (
     ("tracking.idf1", "IDF1"),
     ("tracking.hota", "HOTA"),
     ("localization.median_error_m", "loc. median [m]"),
+    ("localization.centre_median_error_m", "box centre median [m]"),
 )
 
 _CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1800px}

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -38,6 +38,7 @@ import numpy as np
 from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
 from estimator.egomotion.compensation import FrameCompensator
+from estimator.surround.boxfit import Box
 from estimator.surround.detection import DetectionFrame, DetectorConfig, VehicleDetector
 from estimator.surround.tracking import Track, Tracker, TrackerConfig
 
@@ -109,6 +110,9 @@ class SurroundAnalyzer:
         self._steps: deque[tuple[np.ndarray, float]] = deque(maxlen=n)
         self._rate: dict[int, float] = {}  # track id -> hit rate
         self._vehicle: set[int] = set()  # ids of tracks that are vehicles
+        # track id -> its latest box, relative to the tracked point: (dx, dy) [m], yaw [rad],
+        # length, width [m]
+        self._box: dict[int, tuple[float, float, float, float, float]] = {}
 
     def step(
         self,
@@ -165,6 +169,7 @@ class SurroundAnalyzer:
         live = self.tracker.tracks
         ids = {t.id for t in live}
         self._rate = {i: r for i, r in self._rate.items() if i in ids}
+        self._box = {i: b for i, b in self._box.items() if i in ids}
         self._vehicle &= ids
         out = []
         for t in live:
@@ -179,11 +184,33 @@ class SurroundAnalyzer:
                 self._vehicle.add(t.id)
             if hit and t.id in self._vehicle and any(t.extra is c for c in cands):
                 d = t.extra
+                if d.box is not None:
+                    b = d.box
+                    self._box[t.id] = (
+                        b.x_m - d.x_m,
+                        b.y_m - d.y_m,
+                        b.yaw_rad,
+                        b.length_m,
+                        b.width_m,
+                    )
                 if cfg.report_filtered and not d.hidden:
                     d.x_m, d.y_m = float(t.x[0]), float(t.x[1])
                 elif d.hidden:  # bearing only: the track's range on the measured bearing
                     u = np.array([math.cos(d.bearing_rad), math.sin(d.bearing_rad)])
                     r_along = max(float(t.x[:2] @ u), 0.0)
                     d.x_m, d.y_m = float(r_along * u[0]), float(r_along * u[1])
+                if d.box is not None:  # moved with the reported point
+                    dx, dy = self._box[t.id][:2]
+                    d.box = replace(d.box, x_m=d.x_m + dx, y_m=d.y_m + dy)
                 out.append(d)
         return out
+
+    def track_box(self, track: Track) -> Box | None:
+        """The vehicle box of a track (its latest fitted box, kept at the same offset from
+        the tracked point); None before the track had one."""
+        b = self._box.get(track.id)
+        if b is None:
+            return None
+        dx, dy, yaw, length, width = b
+        x, y = float(track.x[0]), float(track.x[1])
+        return Box(x + dx, y + dy, yaw, length, width, float("nan"))

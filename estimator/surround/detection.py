@@ -91,6 +91,7 @@ from estimator.camera.mount import CameraMount
 from estimator.egomotion.compensation import FrameCompensator
 from estimator.egomotion.homography import homography_parts
 from estimator.geometry import skew
+from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
 from estimator.surround.planview import PlanView, pixel_road_xy
 
 DEFAULT_DETECTOR = "hypotheses"  # `DetectorConfig.method` by default
@@ -211,6 +212,7 @@ class Detection:
     bearing_rad: float = float("nan")  # [rad] atan2(y, x) of the nearest point
     score: float = float("nan")
     height_m: float = float("nan")  # [m] apparent height h (1 - d_near / d_far) of the blob
+    box: Box | None = None  # the vehicle's box fitted to its lower outline (None: no fit)
 
 
 class DetectionFrame:
@@ -310,6 +312,24 @@ def _gauss(img: np.ndarray, K: int) -> np.ndarray:
     return cv2.GaussianBlur(img, (K, K), K / 4.0)
 
 
+def lower_outline(
+    xy_m: np.ndarray, bin_rad: float, weak: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """A vehicle's lower outline: of road points xy_m (N, 2) [m], the nearest to the
+    origin per bearing bin of ``bin_rad`` [rad] (``weak`` (N,) bool: points taken only in
+    bins without any other), ordered by bearing; and the bins' indices (M,)."""
+    xy = np.asarray(xy_m, float).reshape(-1, 2)
+    b = np.arctan2(xy[:, 1], xy[:, 0])
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    # bins relative to the mean bearing (no wrap at +-pi)
+    b0 = math.atan2(float(np.sin(b).mean()), float(np.cos(b).mean()))
+    k = np.round(np.angle(np.exp(1j * (b - b0))) / bin_rad).astype(int)
+    w = np.zeros(len(xy), bool) if weak is None else np.asarray(weak, bool)
+    order = np.lexsort((r, w, k))
+    first = order[np.r_[True, k[order][1:] != k[order][:-1]]]
+    return xy[first], k[first]
+
+
 def nearest_on_contour(
     xy_m: np.ndarray,
     bin_rad: float,
@@ -331,16 +351,7 @@ def nearest_on_contour(
     the nearest of them is returned (the nearest contour point when no piece has
     enough points). The fit averages the range quantisation of single pixels.
     """
-    xy = np.asarray(xy_m, float).reshape(-1, 2)
-    b = np.arctan2(xy[:, 1], xy[:, 0])
-    r = np.hypot(xy[:, 0], xy[:, 1])
-    # bins relative to the mean bearing (no wrap at +-pi)
-    b0 = math.atan2(float(np.sin(b).mean()), float(np.cos(b).mean()))
-    k = np.round(np.angle(np.exp(1j * (b - b0))) / bin_rad).astype(int)
-    w = np.zeros(len(xy), bool) if weak is None else np.asarray(weak, bool)
-    order = np.lexsort((r, w, k))
-    first = order[np.r_[True, k[order][1:] != k[order][:-1]]]
-    c, kc = xy[first], k[first]  # contour, ordered by bearing
+    c, kc = lower_outline(xy_m, bin_rad, weak)  # contour, ordered by bearing
     cuts = np.flatnonzero(np.diff(kc) > 3) + 1
     stack = list(np.split(c, cuts))
     pieces = []
@@ -371,10 +382,19 @@ def nearest_on_contour(
 def hidden_box_nearest_point(
     bearing_lo_rad: float, bearing_hi_rad: float, max_range_m: float, box_m: tuple[float, float]
 ) -> np.ndarray | None:
-    """(2,) point [m] nearest the camera of the box (length, width) [m], heading along x,
-    whose bearings from the camera span bearing_lo..bearing_hi [rad] (bearing_hi ahead of
-    bearing_lo counter-clockwise) and whose nearest point lies within max_range_m [m];
-    None when no such box matches the span to 2 deg.
+    """(2,) the nearest point of `hidden_box`'s box [m], or None."""
+    fit = hidden_box(bearing_lo_rad, bearing_hi_rad, max_range_m, box_m)
+    return None if fit is None else fit[2:]
+
+
+def hidden_box(
+    bearing_lo_rad: float, bearing_hi_rad: float, max_range_m: float, box_m: tuple[float, float]
+) -> np.ndarray | None:
+    """(4,) centre and point nearest the camera [m] (x, y, x, y) of the box (length,
+    width) [m], heading along x, whose bearings from the camera span
+    bearing_lo..bearing_hi [rad] (bearing_hi ahead of bearing_lo counter-clockwise) and
+    whose nearest point lies within max_range_m [m]; None when no such box matches the
+    span to 2 deg.
 
     A vehicle whose ground contact is hidden shows its bearings but not its range: with
     its size known, the span it covers gives the range (nearer is wider). The fit is a
@@ -415,7 +435,7 @@ def hidden_box_nearest_point(
     cost, best = fit(rho[rho > 0], theta)
     if not np.isfinite(cost) or cost > 2 * np.radians(2.0) ** 2:
         return None
-    return best[2:]
+    return best
 
 
 class VehicleDetector:
@@ -470,6 +490,7 @@ class VehicleDetector:
         self._rays = camera.pixel_rays()
         h = mount.height_m
         self._clearance_scale = (h - min(cfg.vehicle_clearance_m, 0.5 * h)) / h
+        self._box_cfg = BoxFitConfig(size_m=cfg.hidden_box_m)
 
     @staticmethod
     def _analysed_area(valid: np.ndarray, cfg: DetectorConfig) -> np.ndarray:
@@ -842,6 +863,8 @@ class VehicleDetector:
         # the camera pixel of the reported point: the contour pixel nearest to it
         i = int(np.argmin(np.hypot(*(xy_px - xy).T)))
         xy = xy * self._clearance_scale
+        outline, _ = lower_outline(xy_px, cfg.refine_bearing_bin_rad, weak=~strong[rows, cols])
+        det.box = fit_box(outline * self._clearance_scale, self._box_cfg)
         det.x_m, det.y_m = float(xy[0]), float(xy[1])
         det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
@@ -1001,6 +1024,7 @@ class VehicleDetector:
             rng = float(np.hypot(*xy))
             bearing = float(np.arctan2(xy[1], xy[0]))
             hidden = rng < self.inner_edge_range(bearing) + cfg.hidden_margin_m
+            box = None
             # apparent height: a point at height z, range d is drawn at d h / (h - z)
             height = self.mount.height_m * (1.0 - rng / max(far[g], rng))
             if obstacle_map_only:
@@ -1021,12 +1045,16 @@ class VehicleDetector:
                     edge_r = self.inner_edge_range(bearing)
                     dens = self._edge_px_per_rad[self._edge_bin(bearing)]
                     shrink = cfg.hidden_arc_shrink_px / dens if dens > 0 else 0.0
-                    xy = hidden_box_nearest_point(
+                    fit = hidden_box(
                         bearing + rel.min() + shrink,
                         bearing + rel.max() - shrink,
                         edge_r,
                         cfg.hidden_box_m,
                     )
+                    if fit is not None:
+                        xy = fit[2:]
+                        L, W = cfg.hidden_box_m
+                        box = Box(float(fit[0]), float(fit[1]), 0.0, L, W, float("nan"))
                 if xy is None:
                     xy = (
                         cfg.hidden_range_frac
@@ -1056,6 +1084,7 @@ class VehicleDetector:
                     bearing,
                     float("nan"),
                     float(height),
+                    box,
                 )
             )
         return out

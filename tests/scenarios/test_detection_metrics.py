@@ -30,8 +30,10 @@ from scenarios.detection_metrics import (
 SECTIONS = {
     "detection": {"recall", "precision", "gt_count", "matched"},
     "tracking": {"mota", "idf1", "hota", "id_switches"},
-    "localization": {"median_error_m", "p90_error_m"},
-}
+    "localization": {
+        "median_error_m", "p90_error_m", "centre_median_error_m", "centre_p90_error_m"
+    },
+}  # fmt: skip
 
 
 def car(vid: int, x: float, y: float, yaw: float = 0.0) -> GtVehicle:
@@ -85,15 +87,46 @@ def test_nearest_footprint_point():
 
 # ------------------------------------------------------------------ evaluate
 def test_perfect_hypotheses_score_one():
-    frames = [EvalFrame(two_cars(k), [seen(g, 10 + g.id) for g in two_cars(k)]) for k in range(10)]
+    frames = [
+        EvalFrame(
+            two_cars(k),
+            [seen(g, 10 + g.id) for g in two_cars(k)],
+            centres=[tuple(g.footprint_xy.mean(axis=0)) for g in two_cars(k)],
+        )
+        for k in range(10)
+    ]
     m = evaluate(frames)
     for sec, keys in SECTIONS.items():
         assert set(m[sec]) == keys
     assert m["detection"] == {"recall": 1.0, "precision": 1.0, "gt_count": 20, "matched": 20}
     assert m["tracking"]["mota"] == 1.0 and m["tracking"]["idf1"] == 1.0
     assert m["tracking"]["hota"] == pytest.approx(1.0) and m["tracking"]["id_switches"] == 0
-    assert m["localization"] == {"median_error_m": 0.0, "p90_error_m": 0.0}
+    assert m["localization"] == {
+        "median_error_m": 0.0,
+        "p90_error_m": 0.0,
+        "centre_median_error_m": 0.0,
+        "centre_p90_error_m": 0.0,
+    }
     assert m["gate_m"] == 1.5 and m["nan_reasons"] == {}
+
+
+def test_box_centre_error_of_matched_hypotheses_with_a_box():
+    """Centre error: a matched hypothesis's box centre to the footprint's centre; a
+    hypothesis without a box (NaN) and an unmatched one do not count."""
+    a, b = car(1, 10.0, 0.0), car(2, -10.0, 4.0)
+    f = EvalFrame(
+        [a, b],
+        [(5, 7.5, 0.0), (6, -7.5, 3.5), (7, 30.0, 0.0)],
+        centres=[(11.0, 0.5), (math.nan, math.nan), (31.0, 0.0)],
+    )
+    m = evaluate([f])
+    assert m["detection"]["matched"] == 2 and m["counts"]["centre_pairs"] == 1
+    assert m["localization"]["centre_median_error_m"] == pytest.approx(math.hypot(1.0, 0.5))
+    none = evaluate([EvalFrame([a], [(5, 7.5, 0.0)])])
+    assert math.isnan(none["localization"]["centre_median_error_m"])
+    assert "localization.centre_median_error_m" in none["nan_reasons"]
+    with pytest.raises(ValueError, match="1 box centres for 3 hypotheses"):
+        EvalFrame([a], [(5, 7.5, 0.0), (6, 1.0, 1.0), (7, 2.0, 2.0)], centres=[(1.0, 1.0)])
 
 
 def test_swapped_id_counts_one_switch():

@@ -49,7 +49,9 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert m["ego"]["speed_rmse_mps"] < m["ego"]["prior_speed_rmse_mps"]
     assert set(m["detection"]) >= {"recall", "precision", "gt_count", "matched"}
     assert set(m["tracking"]) >= {"mota", "idf1", "hota", "id_switches"}
-    assert set(m["localization"]) >= {"median_error_m", "p90_error_m"}
+    assert set(m["localization"]) >= {
+        "median_error_m", "p90_error_m", "centre_median_error_m", "centre_p90_error_m"
+    }  # fmt: skip
     sur = m["surround"]  # where detection fails: every breakdown, for tracks and detections
     for part in ("tracks", "detections"):
         assert set(sur[part]) == {"range_bands", "sectors", "motion", "ego_state"}
@@ -86,6 +88,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     head = (out / "tracks.csv").read_text().splitlines()[0].split(",")
     assert head[:7] == ["frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps"]
     assert {"var_x_m2", "cov_xy_m2", "var_y_m2"} <= set(head)
+    assert head[-5:] == ["box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m"]
     rows = (out / "egomotion.csv").read_text().splitlines()
     assert len(rows) == 25 and rows[0].startswith("frame,t_s,V_x")
     # a second run reuses the render: no frame is written again

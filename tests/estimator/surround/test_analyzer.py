@@ -149,3 +149,31 @@ def test_rendered_highway_drive_detects_the_vehicle(tmp_path):
     assert m["detection"]["recall"] >= 0.75
     assert m["detection"]["precision"] >= 0.85
     assert m["localization"]["median_error_m"] <= 1.5
+
+
+def test_vehicle_box_is_carried_with_its_track(omni):
+    """Candidates carry a fitted box 2.35 m ahead and 0.95 m left of their point: the
+    track's box keeps that offset from the tracked point, and the reported detection's box
+    moves with the reported (filtered) point; a track without a box has none."""
+    from estimator.surround.boxfit import Box
+
+    cam, mount = omni
+    sa = SurroundAnalyzer(cam, mount)
+    frames = []
+    for k in range(15):
+        d = _det(12.0 + 0.1 * k, 3.0)
+        d.box = Box(d.x_m + 2.35, d.y_m + 0.95, 0.05, 4.7, 1.9, 0.01)
+        frames.append([d])
+    _stub(sa, frames)
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
+    for k in range(1, 15):
+        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    (tr,) = sf.tracks
+    box = sa.track_box(tr)
+    assert box is not None and (box.yaw_rad, box.length_m, box.width_m) == (0.05, 4.7, 1.9)
+    assert box.x_m == pytest.approx(tr.x[0] + 2.35) and box.y_m == pytest.approx(tr.x[1] + 0.95)
+    (d,) = sf.detection.detections
+    assert d.box.x_m == pytest.approx(d.x_m + 2.35) and d.box.y_m == pytest.approx(d.y_m + 0.95)
+    tr.id = 10_000  # an id the analyzer never saw
+    assert sa.track_box(tr) is None
