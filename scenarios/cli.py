@@ -243,6 +243,36 @@ def run(
 
 
 @app.command()
+def evaluate(
+    drive: Path = typer.Argument(..., help="a rendered drive folder (omnibench render, run)"),
+    out: Path = typer.Option(..., "--out", help="output folder"),
+    egomotion: Path | None = typer.Option(
+        None, help="CSV with at least frame,speed_mps,yaw_rate_dps (docs/FORMATS.md)"
+    ),
+    tracks: Path | None = typer.Option(
+        None, help="CSV with at least frame,track_id,x_m,y_m in the car frame (docs/FORMATS.md)"
+    ),
+) -> None:
+    """Score ego-motion and tracks made by any program against a drive's ground truth."""
+    from scenarios.evaluate import InputError, evaluate_drive
+
+    try:
+        m = evaluate_drive(drive, out, egomotion=egomotion, tracks=tracks)
+    except (InputError, FileNotFoundError) as e:
+        _fail(str(e))
+    if "ego" in m:
+        e = m["ego"]
+        console.print(
+            f"speed RMSE {e['speed_rmse_pct']:.2f} %, yaw rate RMSE "
+            f"{e['yaw_rate_rmse_dps']:.3f} deg/s"
+        )
+    if "tracking" in m:
+        t = m["tracking"]
+        console.print(f"tracks: MOTA {t['mota']:.2f}, IDF1 {t['idf1']:.2f}, HOTA {t['hota']:.2f}")
+    console.print(f"-> {out}/metrics.json, {out}/report.html")
+
+
+@app.command()
 def estimate(
     video: Path = typer.Argument(..., help="video file or folder of frames"),
     camera: str = typer.Option(..., help="camera YAML (intrinsics + mount) or a preset name"),

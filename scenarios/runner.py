@@ -39,8 +39,8 @@ from scenarios.detection_metrics import (
     breakdown,
     evaluate,
     motion_class,
-    recall_polar,
 )
+from scenarios.evaluate import read_tracks_input, track_frames, track_sections
 from scenarios.metrics import (
     ego_consistency,
     ego_metrics,
@@ -61,8 +61,6 @@ from sim.drive import load_groundtruth, render_drive
 
 VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
 GATE_M = 1.5  # a detection matches a vehicle within this distance of its footprint [m]
-POLAR_RING_M = 5.0  # [m] width of the rings of recall_polar.png
-POLAR_SECTOR_DEG = 30.0  # [deg] sectors of recall_polar.png
 
 
 def ego_road_frame(gt_frame: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +156,7 @@ def run_scenario(
     unit_rays = camera_unit_rays(camera) if road_mask else None
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
-    records, track_rows, eval_det, eval_trk = [], [], [], []
+    records, track_rows, eval_det = [], [], []
     t_est, t_det = [], []
     writer = _VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
     still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
@@ -195,10 +193,8 @@ def run_scenario(
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
             det_boxes = [d.box for d in sf.detection.detections]
             eval_det.append(EvalFrame(gt_set, dets, t, moving, _centres(det_boxes)))
-            trk = [(tr.id, float(tr.x[0]), float(tr.x[1])) for tr in sf.tracks]
-            trk_boxes = [surround.track_box(tr) for tr in sf.tracks]
-            eval_trk.append(EvalFrame(gt_set, trk, t, moving, _centres(trk_boxes)))
-            for tr, box in zip(sf.tracks, trk_boxes, strict=True):
+            for tr in sf.tracks:
+                box = surround.track_box(tr)
                 P = tr.P
                 track_rows.append(
                     (k, t, tr.id, *(float(v) for v in tr.x[:4]))
@@ -245,12 +241,16 @@ def run_scenario(
     )
     mcfg = MetricsConfig(gate_m=GATE_M)
     det_m = evaluate(eval_det, mcfg)
-    trk_m = evaluate(eval_trk, mcfg)
-    rings = np.arange(0.0, det_cfg.max_range_m + POLAR_RING_M - 1e-9, POLAR_RING_M)
-    sectors = np.arange(-180.0, 180.0 + 1e-9, POLAR_SECTOR_DEG)
-    polar = recall_polar(eval_trk, rings.tolist(), sectors.tolist(), mcfg)
+    # the tracks are scored from tracks.csv as written, as `omnibench evaluate` scores them
+    trk = track_sections(
+        track_frames(read_tracks_input(out_dir / "tracks.csv", len(gt)), gt, det_cfg.max_range_m),
+        mcfg,
+        det_cfg.max_range_m,
+    )
     viz.plot_recall_polar(
-        polar, out_dir / "recall_polar.png", f"{scenario.name} - {estimator}: track recall"
+        trk["surround"]["recall_polar"],
+        out_dir / "recall_polar.png",
+        f"{scenario.name} - {estimator}: track recall",
     )
     manifest = json.loads((drive_dir / "manifest.json").read_text())
     metrics = {
@@ -263,14 +263,11 @@ def run_scenario(
         "frames": drive.n_frames,
         "ego": {**ego_metrics(series), **ego_consistency(records, gt, mount)},
         "detection": det_m["detection"],
-        "tracking": trk_m["tracking"],
+        "tracking": trk["tracking"],
         "localization": det_m["localization"],
-        "surround": {
-            "detections": breakdown(eval_det, mcfg),
-            "tracks": breakdown(eval_trk, mcfg),
-            "recall_polar": polar,
-            "gt_vehicles": len({g.id for f in eval_trk for g in f.gt}),
-        },
+        "track_detection": trk["track_detection"],
+        "track_localization": trk["track_localization"],
+        "surround": {"detections": breakdown(eval_det, mcfg), **trk["surround"]},
         "compensation": compensation,
         "points_above_road": points_above_road(drive_dir, camera, gt, records),
         "point_pull": _point_pull(pull, series, out_dir / "pull.png", still_image),
@@ -278,7 +275,7 @@ def run_scenario(
             "gate_m": GATE_M,
             "visible_px_min": VISIBLE_PX_MIN,
             "max_range_m": det_cfg.max_range_m,
-            "nan_reasons": {**det_m.get("nan_reasons", {}), **trk_m.get("nan_reasons", {})},
+            "nan_reasons": {**det_m.get("nan_reasons", {}), **trk["nan_reasons"]},
         },
         "timing": {
             "render_ms_per_frame": manifest.get("render_ms_per_frame"),

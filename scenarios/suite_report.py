@@ -20,7 +20,6 @@ frames the runner evaluated (frame >= 1 with a finite estimate).
 
 from __future__ import annotations
 
-import csv
 import html
 import json
 import math
@@ -159,35 +158,19 @@ def write_job_extras(job_dir: Path, drive_dir: Path, force: bool = False) -> Non
     write_estimated_tum(ego, outputs[0])
     write_groundtruth_tum(gt, outputs[1])
     metrics = json.loads(metrics_p.read_text())
-    write_json(outputs[2], recall_bins(ego, gt, job_dir / "tracks.csv", metrics))
+    write_json(outputs[2], recall_bins(gt, job_dir / "tracks.csv", metrics))
 
 
-def recall_bins(ego: dict, gt: list[dict], tracks_csv: Path, metrics: dict) -> dict:
-    """Track recall by range and by bearing (`scenarios.detection_metrics`)."""
-    from scenarios.detection_metrics import (
-        EvalFrame,
-        MetricsConfig,
-        recall_by_bearing,
-        recall_by_range,
-    )
-    from scenarios.metrics import STATE_COLS
-    from scenarios.runner import gt_evaluation_set
+def recall_bins(gt: list[dict], tracks_csv: Path, metrics: dict) -> dict:
+    """Track recall by range and by bearing (`scenarios.detection_metrics`), over the
+    frames the run scored its tracks on (`scenarios.evaluate.track_frames`)."""
+    from scenarios.detection_metrics import MetricsConfig, recall_by_bearing, recall_by_range
+    from scenarios.evaluate import read_tracks_input, track_frames
 
     ev = metrics.get("evaluation", {})
     max_range = float(ev.get("max_range_m", 25.0))
     gate = float(ev.get("gate_m", 1.5))
-    hyps: dict[int, list[tuple[int, float, float]]] = defaultdict(list)
-    with open(tracks_csv, newline="") as fh:
-        for r in csv.DictReader(fh):
-            hyps[int(r["frame"])].append((int(r["track_id"]), float(r["x_m"]), float(r["y_m"])))
-    state = np.stack([ego[c] for c in STATE_COLS], axis=1) if ego else np.zeros((0, 9))
-    frames = []
-    for i, k in enumerate(ego.get("frame", [])):
-        k = int(k)
-        if k < 1 or k >= len(gt) or not np.all(np.isfinite(state[i])):
-            continue
-        gt_set, _ = gt_evaluation_set(gt[k], max_range)
-        frames.append(EvalFrame(gt_set, hyps.get(k, []), float(ego["t_s"][i])))
+    frames = track_frames(read_tracks_input(tracks_csv, len(gt)), gt, max_range)
     cfg = MetricsConfig(gate_m=gate)
     edges = np.arange(0.0, max_range + RANGE_STEP_M - 1e-9, RANGE_STEP_M)
     return {

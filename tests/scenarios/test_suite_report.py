@@ -110,17 +110,14 @@ def _gt_frame(k: int) -> dict:
 
 def test_recall_bins_from_tracks(tmp_path):
     gt = [_gt_frame(k) for k in range(4)]
-    ego = {"frame": np.arange(4), "t_s": np.arange(4) / 15}
-    for c in ("V_x", "V_y", "V_z", "W_x", "W_y", "W_z", "A_x", "A_y", "A_z"):
-        ego[c] = np.zeros(4)
     tracks = tmp_path / "tracks.csv"
     with open(tracks, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps"])
         w.writerow([1, 0.0667, 1, 10.0, 0.0, 0, 0])
         w.writerow([2, 0.1333, 1, 10.1, 0.0, 0, 0])
-    bins = recall_bins(ego, gt, tracks, {"evaluation": {"max_range_m": 25.0, "gate_m": 1.5}})
-    assert bins["frames"] == 3  # frame 0 has no estimate of motion
+    bins = recall_bins(gt, tracks, {"evaluation": {"max_range_m": 25.0, "gate_m": 1.5}})
+    assert bins["frames"] == 3  # frame 0 has no motion to detect with
     r = bins["range"]
     assert r["bin_edges"] == [0, 5, 10, 15, 20, 25]
     assert r["gt_count"] == [0, 0, 3, 0, 0] and r["matched"] == [0, 0, 2, 0, 0]

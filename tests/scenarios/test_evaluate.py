@@ -1,0 +1,176 @@
+"""Scoring of result files made elsewhere (`omnibench evaluate`)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scenarios.evaluate import InputError, evaluate_drive, read_egomotion_input
+from scenarios.runner import gt_evaluation_set
+from sim.drive import load_groundtruth
+
+FRAMES = 20
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    """A short run of the library's highway drive (render, estimate, detect, track)."""
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    out = tmp_path_factory.mktemp("run")
+    run_scenario(
+        load_scenario("highway-omni-near"), out, max_frames=FRAMES, progress=False, video=False
+    )
+    return out
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flat(v, key + "."))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[key] = float(v)
+        elif isinstance(v, list) and all(isinstance(x, (int, float)) for x in np.ravel(v)):
+            for i, x in enumerate(np.ravel(v)):
+                out[f"{key}[{i}]"] = float(x)
+    return out
+
+
+def test_scoring_the_runs_own_files_gives_its_metrics(run_dir: Path, tmp_path: Path):
+    """Every figure that both write agrees to 1e-9, ego and tracks."""
+    m = evaluate_drive(
+        run_dir / "drive",
+        tmp_path,
+        egomotion=run_dir / "egomotion.csv",
+        tracks=run_dir / "tracks.csv",
+    )
+    ran = _flat(json.loads((run_dir / "metrics.json").read_text()))
+    got = _flat(json.loads((tmp_path / "metrics.json").read_text()))
+    shared = sorted(set(ran) & set(got) - {"frames"})
+    assert len(shared) > 100
+    sections = ("ego.", "tracking.", "track_detection.", "surround.tracks.", "surround.recall_")
+    for section in sections:
+        assert any(k.startswith(section) for k in shared), section
+    for k in shared:
+        a, b = ran[k], got[k]
+        assert (math.isnan(a) and math.isnan(b)) or abs(a - b) <= 1e-9, (k, a, b)
+    assert m["frames"] == FRAMES
+    for name in ("report.html", "ego_error.png", "tracks.png", "recall_polar.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_tracks_made_from_the_truth_score_one(run_dir: Path, tmp_path: Path):
+    """The evaluation set's vehicles at their footprint centres, one track per vehicle:
+    recall, precision, MOTA and IDF1 1.0, box-centre error 0."""
+    drive = run_dir / "drive"
+    gt = load_groundtruth(drive)
+    path = tmp_path / "true_tracks.csv"
+    n = 0
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "track_id", "x_m", "y_m", "box_x_m", "box_y_m"])
+        for k in range(1, len(gt)):
+            for g in gt_evaluation_set(gt[k], 25.0)[0]:
+                c = g.footprint_xy.mean(axis=0)
+                w.writerow([k, g.id, *(f"{v:.6f}" for v in (c[0], c[1], c[0], c[1]))])
+                n += 1
+    assert n >= 10  # the highway drive has a car in range
+    m = evaluate_drive(drive, tmp_path / "out", tracks=path)
+    assert m["track_detection"]["recall"] == 1.0 and m["track_detection"]["precision"] == 1.0
+    assert m["tracking"]["mota"] == 1.0 and m["tracking"]["idf1"] == 1.0
+    assert m["track_localization"]["centre_median_error_m"] < 1e-5
+    assert "ego" not in m
+
+
+def test_speed_and_yaw_rate_columns_alone_are_enough(run_dir: Path, tmp_path: Path):
+    """Only frame,speed_mps,yaw_rate_dps: the same speed and yaw-rate RMSE (to the CSV's
+    4 decimals), A's metrics NaN with the reason."""
+    rows = list(csv.DictReader(open(run_dir / "egomotion.csv")))
+    path = tmp_path / "rates.csv"
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "speed_mps", "yaw_rate_dps"])
+        for r in rows:
+            w.writerow([r["frame"], r["speed_mps"], r["yaw_rate_dps"]])
+    m = evaluate_drive(run_dir / "drive", tmp_path / "out", egomotion=path)
+    ran = json.loads((run_dir / "metrics.json").read_text())["ego"]
+    assert m["ego"]["speed_rmse_mps"] == pytest.approx(ran["speed_rmse_mps"], abs=2e-4)
+    assert m["ego"]["yaw_rate_rmse_dps"] == pytest.approx(ran["yaw_rate_rmse_dps"], abs=2e-4)
+    assert math.isnan(m["ego"]["angle_rmse_deg"])
+    assert "ego.angle_rmse_deg" in m["evaluation"]["nan_reasons"]
+
+
+def _write(path: Path, header: str, lines: list[str]) -> Path:
+    path.write_text("\n".join([header, *lines]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("lines", "match"),
+    [
+        (["0,1,0", "1,1,0", "1,1,0"], r"line 4: frame 1 again \(first on line 3\)"),
+        (["0,1,0", "1,1,0", "2,nan,0"], r"line 4: speed_mps='nan' is not finite"),
+        (["0,1,0", "1,1,0", "2,fast,0"], r"line 4: speed_mps='fast' is not a number"),
+        (["0,1,0", "1,1,0", "7,1,0"], r"line 4: frame=7 is outside the drive's frames 0..4"),
+        (["0,1,0", "1,1,0", "2,1,0"], r"no row for frame\(s\) 3, 4"),
+    ],
+)
+def test_bad_egomotion_rows_are_named(tmp_path: Path, lines, match):
+    path = _write(tmp_path / "ego.csv", "frame,speed_mps,yaw_rate_dps", lines)
+    with pytest.raises(InputError, match=match) as e:
+        read_egomotion_input(path, 5)
+    assert str(path) in str(e.value)
+
+
+def test_bad_inputs_are_refused_before_anything_is_written(run_dir: Path, tmp_path: Path):
+    drive = run_dir / "drive"
+    out = tmp_path / "out"
+    bad_tracks = [
+        ("frame,x_m,y_m", ["1,2,3"], r"missing column\(s\) \['track_id'\]"),
+        ("frame,track_id,x_m,y_m", ["1,a,2,3"], r"line 2: track_id='a' is not an integer"),
+        ("frame,track_id,x_m,y_m", ["1,-3,2,3"], r"track_id='-3' is not an integer >= 0"),
+        ("frame,track_id,x_m,y_m", ["1,4,2,3", "1,4,5,6"], r"line 3: track 4 twice in frame 1"),
+        ("frame,track_id,x_m,y_m", ["1,4,inf,3"], r"line 2: x_m='inf' is not finite"),
+        ("frame,track_id,x_m,y_m", [f"{FRAMES},4,1,3"], rf"frame={FRAMES} is outside"),
+    ]
+    for header, lines, match in bad_tracks:
+        path = _write(tmp_path / "t.csv", header, lines)
+        with pytest.raises(InputError, match=match):
+            evaluate_drive(drive, out, tracks=path)
+    with pytest.raises(InputError, match="nothing to score"):
+        evaluate_drive(drive, out)
+    with pytest.raises(InputError, match="not a complete rendered drive"):
+        evaluate_drive(tmp_path, out, tracks=run_dir / "tracks.csv")
+    with pytest.raises(InputError, match="no such file"):
+        evaluate_drive(drive, out, tracks=tmp_path / "none.csv")
+    assert not out.exists()
+
+
+def test_cli_evaluate_prints_the_figures_and_names_a_bad_file(run_dir: Path, tmp_path: Path):
+    cmd = [sys.executable, "-m", "scenarios", "evaluate", str(run_dir / "drive")]
+    ok = subprocess.run(
+        [*cmd, "--out", str(tmp_path / "o"), "--egomotion", str(run_dir / "egomotion.csv")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert "speed RMSE" in ok.stderr and (tmp_path / "o" / "metrics.json").exists()
+    bad = _write(tmp_path / "b.csv", "frame,track_id,x_m,y_m", ["1,1,2"])
+    fail = subprocess.run(
+        [*cmd, "--out", str(tmp_path / "p"), "--tracks", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert fail.returncode == 2 and "b.csv, line 2: y_m=None is not a number" in fail.stderr
