@@ -115,7 +115,8 @@ def estimate_frames(
                     raise ValueError(f"fewer road masks than frames: none for frame {k}")
             t0 = time.perf_counter()
             try:
-                rec = est.step(img, t_k, can.at(t_k), road_mask=mask)
+                given = {"road_mask": mask} if mask is not None else {}  # plug-ins may take none
+                rec = est.step(img, t_k, can.at(t_k), **given)
             except ValueError as e:
                 if mask is None or "road_mask" not in str(e):
                     raise

@@ -170,7 +170,9 @@ def main() -> None:
 def run(
     scenario: str = typer.Argument(..., help="scenario name or path to a YAML file"),
     out: Path = typer.Option(..., "--out", help="output folder"),
-    estimator: str = typer.Option("direct", help="direct | can-only | features"),
+    estimator: str = typer.Option(
+        "direct", help="direct | can-only | features | a plug-in package.module:ClassName"
+    ),
     frames: int | None = typer.Option(None, help="only the first N frames"),
     road_mask: str | None = typer.Option(
         None, help="'gt': give the estimator the true road mask (a diagnostic ceiling)"
@@ -278,7 +280,9 @@ def estimate(
     camera: str = typer.Option(..., help="camera YAML (intrinsics + mount) or a preset name"),
     can: Path = typer.Option(..., help="CAN CSV with columns t_s,speed_mps"),
     out: Path = typer.Option(..., "--out", help="output folder"),
-    estimator: str = typer.Option("direct", help="direct | can-only | features"),
+    estimator: str = typer.Option(
+        "direct", help="direct | can-only | features | a plug-in package.module:ClassName"
+    ),
     timestamps: Path | None = typer.Option(None, help="CSV frame,t_s (default: from fps)"),
     fps: float | None = typer.Option(None, help="frame rate when the video has none"),
     road_masks: Path | None = typer.Option(

@@ -174,7 +174,8 @@ def ego_consistency(records: list, gt: list[dict], mount: CameraMount) -> dict:
     estimator's own variance (its full P, car axes), over the frames with truth; about 1
     when the covariance the estimator prints is honest, much larger when it is
     overconfident. The roll/pitch NEES is ``eᵀ S⁻¹ e / 2`` (2 dof) with S the 2 x 2 block
-    of A's covariance in car axes."""
+    of A's covariance in car axes. A frame whose variance is not finite and positive (an
+    estimator that does not know it, e.g. a plug-in's NaN) is left out of that NEES."""
     R = mount.R_car_cam
     h_v, h_w = R[0], R[2]  # forward speed = h_v . V, yaw rate = h_w . W
     H_a = R[:2]  # (roll, pitch) = H_a A
@@ -187,11 +188,16 @@ def ego_consistency(records: list, gt: list[dict], mount: CameraMount) -> dict:
         m = g["motion_from_prev"]
         ev = float(h_v @ (rec.x[0:3] - np.asarray(m["V_mps"])))
         ew = float(h_w @ (rec.x[3:6] - np.asarray(m["W_rps"])))
-        nv.append(ev**2 / float(h_v @ rec.P[0:3, 0:3] @ h_v))
-        nw.append(ew**2 / float(h_w @ rec.P[3:6, 3:6] @ h_w))
-        if "A_rad" in m:
+        var_v = float(h_v @ rec.P[0:3, 0:3] @ h_v)
+        var_w = float(h_w @ rec.P[3:6, 3:6] @ h_w)
+        if np.isfinite(var_v) and var_v > 0:
+            nv.append(ev**2 / var_v)
+        if np.isfinite(var_w) and var_w > 0:
+            nw.append(ew**2 / var_w)
+        S = H_a @ rec.P[6:9, 6:9] @ H_a.T
+        if "A_rad" in m and np.all(np.isfinite(S)) and np.linalg.det(S) > 0:
             ea = H_a @ (rec.x[6:9] - np.asarray(m["A_rad"]))
-            na.append(float(ea @ np.linalg.solve(H_a @ rec.P[6:9, 6:9] @ H_a.T, ea)) / 2.0)
+            na.append(float(ea @ np.linalg.solve(S, ea)) / 2.0)
     return {"speed_nees": _mean(nv), "yaw_rate_nees": _mean(nw), "angle_nees": _mean(na)}
 
 

@@ -168,7 +168,9 @@ def run_scenario(
             t = float(times[k])
             given = gt_road_mask(drive_dir, k, unit_rays, gt[k]) if road_mask else None
             t0 = time.perf_counter()  # the estimator's time, without the truth's mask
-            rec = est.step(image, t, can.at(t), road_mask=given)
+            # (a plug-in's step may take no road mask: passed only when there is one)
+            masks = {"road_mask": given} if given is not None else {}
+            rec = est.step(image, t, can.at(t), **masks)
             t1 = time.perf_counter()
             vmask = gt_vehicle_mask(drive_dir, k) if vehicle_mask else None
             t1 = time.perf_counter()
@@ -181,7 +183,7 @@ def run_scenario(
                 t_det.append(t2 - t1)
             records.append(rec)
             truth = gt[k]["motion_from_prev"]
-            if truth is not None:  # (None on the first frame: no pair yet)
+            if truth is not None and hasattr(est, "point_pull"):  # (None on frame 0)
                 x_true = make_state(truth["V_mps"], truth["W_rps"], truth["A_rad"])
                 pull.add(est.point_pull(x_true))
             if k == still_k:

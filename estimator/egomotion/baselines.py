@@ -37,6 +37,7 @@ from estimator.egomotion.homography import N_STATE, homography
 from estimator.egomotion.iekf import FilterConfig
 from estimator.egomotion.levels import road_roi
 from estimator.egomotion.motion_model import warp_jacobian, warp_pixels
+from estimator.plugins import check_estimator_class, is_plugin_name, load_class
 
 
 # ------------------------------------------------------------------ CAN only
@@ -303,22 +304,32 @@ _CONFIGS: dict[str, type] = {"can-only": CanOnlyConfig, "features": FeatureConfi
 
 
 def check_estimator(name: str) -> str:
-    """``name`` if it is a known estimator; ValueError naming it and the known ones."""
-    if name not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)}")
-    return name
+    """``name`` if it is a known estimator or a plug-in that follows the protocol
+    (`estimator.plugins`); ValueError naming it and what is wrong otherwise."""
+    if name in ESTIMATORS:
+        return name
+    if is_plugin_name(name):
+        check_estimator_class(load_class(name), name)
+        return name
+    raise ValueError(
+        f"unknown estimator {name!r}; choose one of {', '.join(ESTIMATORS)} or a plug-in "
+        "package.module:ClassName"
+    )
 
 
 def make_estimator(
     name: str, camera: CameraModel, mount: CameraMount, **cfg: Any
 ) -> EgoMotionEstimator:
-    """Estimator ``name`` ("direct", "can-only", "features") with config overrides ``cfg``.
+    """Estimator ``name`` ("direct", "can-only", "features" or a plug-in,
+    `estimator.plugins`) with config overrides ``cfg`` (a plug-in's keyword settings).
 
     Overrides are the fields of the estimator's config dataclass (nested
     ``filter={...}`` for `FilterConfig`); "direct" starts from the camera kind's
     defaults (`estimator.egomotion.direct_config.default_config`).
     """
     check_estimator(name)
+    if name not in ESTIMATORS:  # a plug-in
+        return load_class(name)(camera, mount, **cfg)
     if name == "direct":
         return DirectEstimator(camera, mount, default_config(camera.kind, **cfg))
     return ESTIMATORS[name](camera, mount, make_config(_CONFIGS[name], cfg, name))

@@ -66,6 +66,34 @@ class EgoMotionRecord:
     reason: str = ""
     compensated: np.ndarray | None = None
 
+    @classmethod
+    def from_rates(
+        cls,
+        frame: int,
+        t_s: float,
+        dt_s: float,
+        speed_mps: float,
+        yaw_rate_rps: float,
+        mount: CameraMount,
+        speed_var_m2ps2: float = math.nan,
+        yaw_rate_var_r2ps2: float = math.nan,
+        **fields: Any,
+    ) -> EgoMotionRecord:
+        """A record of a forward speed [m/s] and a yaw rate [rad/s] in the car frame (an
+        estimator that measures only those, e.g. a plug-in): the state is the viewpoint
+        moving along the car's x axis and turning about its z axis, A = 0; P holds the
+        given variances (NaN: unknown) in those directions, NaN for A (not measured).
+        ``fields``: any other field (degraded, reason, n_points, ...)."""
+        R = np.asarray(mount.R_car_cam, float)
+        x = np.zeros(N_STATE)
+        x[V_SLICE] = R.T @ np.array([speed_mps, 0.0, 0.0])
+        x[W_SLICE] = R.T @ np.array([0.0, 0.0, yaw_rate_rps])
+        P = np.zeros((N_STATE, N_STATE))
+        P[V_SLICE, V_SLICE] = speed_var_m2ps2 * np.outer(R[0], R[0])
+        P[W_SLICE, W_SLICE] = yaw_rate_var_r2ps2 * np.outer(R[2], R[2])
+        P[A_SLICE, A_SLICE] = math.nan
+        return cls(frame, t_s, dt_s, x, P, x.copy(), P.copy(), speed_mps, yaw_rate_rps, **fields)
+
     @property
     def V(self) -> np.ndarray:
         """(3,) viewpoint velocity in the nominal camera frame [m/s]."""

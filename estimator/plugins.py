@@ -1,0 +1,105 @@
+"""Ego-motion estimators from outside the project (plug-ins).
+
+Wherever an estimator is named (`omnibench run --estimator`, `omnibench estimate
+--estimator`, a suite's ``estimators:`` list, `make_estimator`), a plug-in is named
+
+- ``package.module:ClassName``: the module is imported (it must be importable: installed,
+  or on ``PYTHONPATH``), or
+- by a name that an installed package registers in the entry-point group
+  ``omnibench.estimators`` (``[project.entry-points."omnibench.estimators"]`` in its
+  ``pyproject.toml``: ``my-lk = "my_package.estimator:LKEstimator"``).
+
+The class follows the protocol of the shipped `EgoMotionEstimator`:
+
+- ``ClassName(camera, mount, **settings)``: the camera model
+  (`estimator.camera.models.CameraModel`), its mount (`estimator.camera.mount.CameraMount`)
+  and keyword settings (``omnibench estimate --set KEY=VALUE``);
+- ``step(image, t_s, can_speed_mps) -> EgoMotionRecord``: image (H, W, 3) uint8 RGB, time
+  [s], the latest CAN speed [m/s] (None or NaN when missing); the record of the motion
+  from the previous frame to this one (the first frame's: a prior).
+  `EgoMotionRecord.from_rates` builds one from a forward speed and a yaw rate.
+
+A wrong name, a module that does not import, a missing class, or a class without the
+protocol's methods is a ValueError naming what is wrong, raised before anything renders.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import inspect
+from typing import Any
+
+ESTIMATOR_GROUP = "omnibench.estimators"
+
+
+def is_plugin_name(name: str) -> bool:
+    """True for ``module:Class`` specs and names registered in the entry-point group."""
+    return ":" in name or name in registered(ESTIMATOR_GROUP)
+
+
+def registered(group: str) -> dict[str, importlib.metadata.EntryPoint]:
+    """Entry points of installed packages in ``group``, by name."""
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=group)}
+
+
+def load_class(spec: str, group: str = ESTIMATOR_GROUP) -> type:
+    """The class a plug-in name stands for (module docstring); ValueError otherwise."""
+    if ":" in spec:
+        module, _, attr = spec.partition(":")
+        if not module or not attr:
+            raise ValueError(f"plug-in {spec!r}: write it as package.module:ClassName")
+        try:
+            obj: Any = importlib.import_module(module)
+        except Exception as e:  # any error of the user's module, named
+            raise ValueError(f"plug-in {spec!r}: module {module!r} does not import: {e}") from e
+        for part in attr.split("."):
+            if not hasattr(obj, part):
+                raise ValueError(f"plug-in {spec!r}: module {module!r} has no {attr!r}")
+            obj = getattr(obj, part)
+    else:
+        eps = registered(group)
+        if spec not in eps:
+            raise ValueError(f"plug-in {spec!r}: no entry point of that name in {group!r}")
+        try:
+            obj = eps[spec].load()
+        except Exception as e:
+            raise ValueError(f"plug-in {spec!r}: its entry point does not load: {e}") from e
+    if not inspect.isclass(obj):
+        raise ValueError(f"plug-in {spec!r}: {obj!r} is not a class")
+    return obj
+
+
+def _accepts(fn: Any, n_positional: int) -> bool:
+    """Whether ``fn`` (a function, or a class's __init__ unbound) accepts that many
+    positional arguments after self."""
+    try:
+        sig = inspect.signature(fn)
+    except (TypeError, ValueError):
+        return True  # a builtin: cannot tell, let the call decide
+    try:
+        sig.bind(*([None] * (n_positional + 1)))
+    except TypeError:
+        return False
+    return True
+
+
+def check_estimator_class(cls: type, spec: str) -> type:
+    """``cls`` if it follows the estimator protocol (module docstring); ValueError naming
+    the missing or wrong part otherwise."""
+    if not _accepts(cls.__init__, 2):
+        raise ValueError(
+            f"plug-in {spec!r}: {cls.__name__}(camera, mount, **settings) is not accepted "
+            f"by its __init__{inspect.signature(cls.__init__)}"
+        )
+    step = getattr(cls, "step", None)
+    if not callable(step):
+        raise ValueError(
+            f"plug-in {spec!r}: {cls.__name__} has no method step(image, t_s, can_speed_mps)"
+        )
+    if not _accepts(step, 3):
+        raise ValueError(
+            f"plug-in {spec!r}: {cls.__name__}.step{inspect.signature(step)} does not accept "
+            "(image, t_s, can_speed_mps)"
+        )
+    return cls
