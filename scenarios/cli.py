@@ -275,6 +275,22 @@ def evaluate(
 
 
 @app.command()
+def export(
+    drive: Path = typer.Argument(..., help="a rendered drive folder (omnibench render, run)"),
+    format: str = typer.Option(..., "--format", help="tum | depth | coco | flow"),
+    out: Path = typer.Option(..., "--out", help="output folder"),
+) -> None:
+    """Write a drive's ground truth in formats other tools read (docs/FORMATS.md)."""
+    from scenarios.export import ExportError, export_drive
+
+    try:
+        files = export_drive(drive, format, out)
+    except (ExportError, FileNotFoundError) as e:
+        _fail(str(e))
+    console.print(f"{len(files)} file(s) -> {out}")
+
+
+@app.command()
 def estimate(
     video: Path = typer.Argument(..., help="video file or folder of frames"),
     camera: str = typer.Option(..., help="camera YAML (intrinsics + mount) or a preset name"),

@@ -1,0 +1,199 @@
+"""A rendered drive's ground truth in formats other tools read (`omnibench export`).
+
+- ``tum``: the true trajectory, ``groundtruth.tum`` (``t x y z qx qy qz qw``, the first
+  frame's car frame; `scenarios.tum`), for evo.
+- ``depth``: ``depth/NNNNNN.png``, uint16, the range along each pixel's ray in
+  centimetres (0: no surface, the sky), with ``depth/scale.json``.
+- ``coco``: ``coco.json``, COCO instances: one image per frame, one annotation per
+  vehicle seen in it (not the ego car), its instance mask (RLE, pycocotools) and box
+  ``[x, y, w, h]`` the extent of its id pixels; ``track_id`` the vehicle's id.
+- ``flow``: ``flow/NNNNNN.npy``, (H, W, 2) float64, where each pixel of frame k is in
+  frame k + 1 less where it is [px] (u, v), from the exact geometry: the pixel's surface
+  point (the road plane's for road pixels, exactly; the range image's elsewhere) moved
+  with what it belongs to (the world, a vehicle's rigid motion, or the ego car: then 0)
+  and projected with the camera model at frame k + 1's pose. NaN where the point has no
+  surface (sky), its vehicle has left, or it leaves the field of view.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+FORMATS = ("tum", "depth", "coco", "flow")
+RANGE_UNIT_M = 0.01  # [m] per unit of the range images (sim/drive.py)
+ROAD_Z_M = 0.05  # [m] a static surface within this of the road plane is the road
+
+
+class ExportError(ValueError):
+    """A format or a drive that cannot be exported; names it."""
+
+
+def export_drive(drive_dir: Path, fmt: str, out_dir: Path, progress: bool = True) -> list[Path]:
+    """Write the drive's ground truth in ``fmt`` (`FORMATS`) under out_dir; the files."""
+    from estimator.camera.files import load_camera
+    from sim.drive import load_groundtruth
+
+    if fmt not in FORMATS:
+        raise ExportError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    drive_dir, out_dir = Path(drive_dir), Path(out_dir)
+    try:
+        complete = json.loads((drive_dir / "manifest.json").read_text()).get("complete")
+    except (OSError, ValueError):
+        complete = False
+    if complete is not True:
+        raise ExportError(f"{drive_dir}: not a complete rendered drive (no complete manifest.json)")
+    gt = load_groundtruth(drive_dir)
+    camera, _ = load_camera(drive_dir / "camera.yaml")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if fmt == "tum":
+        from scenarios.tum import write_groundtruth_tum
+
+        write_groundtruth_tum(gt, out_dir / "groundtruth.tum")
+        return [out_dir / "groundtruth.tum"]
+    if fmt == "depth":
+        return _export_depth(drive_dir, out_dir, len(gt), progress)
+    if fmt == "coco":
+        return [_export_coco(drive_dir, out_dir, gt, camera, progress)]
+    return _export_flow(drive_dir, out_dir, gt, camera, progress)
+
+
+def _frames(n: int, what: str, progress: bool):
+    from estimator.progress import track
+
+    return track(range(n), n, what, progress)
+
+
+def _export_depth(drive_dir: Path, out_dir: Path, n: int, progress: bool) -> list[Path]:
+    from estimator.fileio import read_png, write_json, write_png
+
+    (out_dir / "depth").mkdir(exist_ok=True)
+    out = []
+    for k in _frames(n, "export depth", progress):
+        p = out_dir / "depth" / f"{k:06d}.png"
+        write_png(p, read_png(drive_dir / "range" / f"{k:06d}.png").astype(np.uint16))
+        out.append(p)
+    write_json(
+        out_dir / "depth" / "scale.json",
+        {"quantity": "range along the pixel's ray", "unit_m": RANGE_UNIT_M, "no_surface": 0},
+    )
+    return out + [out_dir / "depth" / "scale.json"]
+
+
+def _export_coco(drive_dir: Path, out_dir: Path, gt: list[dict], camera, progress: bool) -> Path:
+    from pycocotools import mask as mask_utils
+
+    from estimator.fileio import read_png, write_json
+
+    images, annotations = [], []
+    for k in _frames(len(gt), "export coco", progress):
+        ids = read_png(drive_dir / "ids" / f"{k:06d}.png").astype(np.int64) - 1
+        images.append(
+            {
+                "id": k,
+                "file_name": f"frames/{k:06d}.png",
+                "width": camera.width,
+                "height": camera.height,
+                "t_s": gt[k]["t_s"],
+            }
+        )
+        for vid in np.unique(ids[ids > 0]):  # -1: no vehicle, 0: the ego car
+            m = ids == vid
+            rows, cols = np.nonzero(m)
+            rle = mask_utils.encode(np.asfortranarray(m.astype(np.uint8)))
+            rle["counts"] = rle["counts"].decode("ascii")
+            x0, y0 = int(cols.min()), int(rows.min())
+            annotations.append(
+                {
+                    "id": len(annotations) + 1,
+                    "image_id": k,
+                    "category_id": 1,
+                    "track_id": int(vid),
+                    "segmentation": rle,
+                    "area": int(m.sum()),
+                    "bbox": [x0, y0, int(cols.max()) - x0 + 1, int(rows.max()) - y0 + 1],
+                    "iscrowd": 0,
+                }
+            )
+    path = out_dir / "coco.json"
+    write_json(
+        path,
+        {
+            "info": {"description": f"omnibench drive {drive_dir.name}: vehicle instances"},
+            "images": images,
+            "annotations": annotations,
+            "categories": [{"id": 1, "name": "vehicle", "supercategory": "vehicle"}],
+        },
+    )
+    return path
+
+
+def _vehicle_pose(v: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), t (3,)) world from a vehicle's body frame (its yaw about z)."""
+    c, s = np.cos(v["yaw_rad"]), np.sin(v["yaw_rad"])
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array(
+        [v["x_m"], v["y_m"], 0.0]
+    )
+
+
+def flow_between(
+    camera, gt_a: dict, gt_b: dict, ids: np.ndarray, range_m: np.ndarray
+) -> np.ndarray:
+    """(H, W, 2) float64 flow [px] of frame a's pixels into frame b (module docstring).
+
+    ids: (H, W) vehicle id per pixel (-1 none, 0 the ego car); range_m: (H, W) range
+    along each pixel's ray [m] (0: none).
+    """
+    H, W = ids.shape
+    rays = camera.pixel_rays().reshape(-1, 3).astype(np.float64)
+    Ta = np.asarray(gt_a["T_world_cam_actual"], float)
+    Tb = np.asarray(gt_b["T_world_cam_actual"], float)
+    d = rays @ Ta[:3, :3].T  # world directions
+    o = Ta[:3, 3]
+    r = range_m.reshape(-1).astype(np.float64)
+    idv = ids.reshape(-1)
+    p = o + d * r[:, None]  # surface points (world)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_road = -o[2] / d[:, 2]
+    road = (idv < 0) & (r > 0) & (np.abs(p[:, 2]) < ROAD_Z_M) & (s_road > 0)
+    p[road] = o + d[road] * s_road[road, None]  # exactly on the plane z = 0
+    known = r > 0
+    # vehicles: their rigid motion from a to b
+    b_by_id = {v["id"]: v for v in gt_b["vehicles"]}
+    for v in gt_a["vehicles"]:
+        sel = idv == v["id"]
+        if not sel.any():
+            continue
+        if v["id"] not in b_by_id:
+            known &= ~sel
+            continue
+        Ra, ta = _vehicle_pose(v)
+        Rb, tb = _vehicle_pose(b_by_id[v["id"]])
+        p[sel] = (p[sel] - ta) @ Ra @ Rb.T + tb  # Rb Ra^T (p - ta) + tb
+    ego = idv == 0  # moves with the camera
+    p[ego] = (p[ego] - o) @ Ta[:3, :3] @ Tb[:3, :3].T + Tb[:3, 3]
+    P_b = (p - Tb[:3, 3]) @ Tb[:3, :3]  # camera b axes: R_b^T (p - o_b)
+    w_b = camera.project(P_b)
+    ok = known & camera.valid_rays(P_b) & np.all(np.isfinite(w_b), axis=1)
+    w_a = camera.pixel_grid().reshape(-1, 2)
+    flow = np.where(ok[:, None], w_b - w_a, np.nan)
+    return flow.reshape(H, W, 2)
+
+
+def _export_flow(
+    drive_dir: Path, out_dir: Path, gt: list[dict], camera, progress: bool
+) -> list[Path]:
+    from estimator.fileio import atomic_write, read_png
+
+    (out_dir / "flow").mkdir(exist_ok=True)
+    out = []
+    for k in _frames(len(gt) - 1, "export flow", progress):
+        ids = read_png(drive_dir / "ids" / f"{k:06d}.png").astype(np.int64) - 1
+        rng = read_png(drive_dir / "range" / f"{k:06d}.png").astype(np.float64) * RANGE_UNIT_M
+        flow = flow_between(camera, gt[k], gt[k + 1], ids, rng)
+        p = out_dir / "flow" / f"{k:06d}.npy"
+        atomic_write(p, lambda tmp, f=flow: np.save(tmp, f))
+        out.append(p)
+    return out
