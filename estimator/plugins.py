@@ -1,4 +1,4 @@
-"""Ego-motion estimators from outside the project (plug-ins).
+"""Ego-motion estimators and surround detectors from outside the project (plug-ins).
 
 Wherever an estimator is named (`omnibench run --estimator`, `omnibench estimate
 --estimator`, a suite's ``estimators:`` list, `make_estimator`), a plug-in is named
@@ -19,6 +19,18 @@ The class follows the protocol of the shipped `EgoMotionEstimator`:
   from the previous frame to this one (the first frame's: a prior).
   `EgoMotionRecord.from_rates` builds one from a forward speed and a yaw rate.
 
+Surround detectors/trackers are named the same way (`omnibench run --detector`, a suite's
+``detectors:`` list; entry-point group ``omnibench.detectors``) and follow the protocol of
+`estimator.surround.plugin.PluginSurround`:
+
+- ``ClassName(camera, mount, **settings)``;
+- ``step(frame, t_s, image, x, dt_s, speed_mps, yaw_rate_rps) -> list of tracks``: the
+  frame index, its time [s], the image (H, W, 3) uint8 RGB, the ego-motion estimate since
+  the previous frame (the state x (9,) and dt [s]; the car-frame speed [m/s] and yaw rate
+  [rad/s]); each track a mapping or an object with ``track_id``, ``x_m``, ``y_m`` (ego road
+  frame) and optionally ``vx_mps``, ``vy_mps`` and the box ``box_x_m``, ``box_y_m``,
+  ``box_yaw_rad``, ``box_length_m``, ``box_width_m``.
+
 A wrong name, a module that does not import, a missing class, or a class without the
 protocol's methods is a ValueError naming what is wrong, raised before anything renders.
 """
@@ -31,11 +43,12 @@ import inspect
 from typing import Any
 
 ESTIMATOR_GROUP = "omnibench.estimators"
+DETECTOR_GROUP = "omnibench.detectors"
 
 
-def is_plugin_name(name: str) -> bool:
+def is_plugin_name(name: str, group: str = ESTIMATOR_GROUP) -> bool:
     """True for ``module:Class`` specs and names registered in the entry-point group."""
-    return ":" in name or name in registered(ESTIMATOR_GROUP)
+    return ":" in name or name in registered(group)
 
 
 def registered(group: str) -> dict[str, importlib.metadata.EntryPoint]:
@@ -84,22 +97,34 @@ def _accepts(fn: Any, n_positional: int) -> bool:
     return True
 
 
+ESTIMATOR_STEP = ("image", "t_s", "can_speed_mps")
+DETECTOR_STEP = ("frame", "t_s", "image", "x", "dt_s", "speed_mps", "yaw_rate_rps")
+
+
 def check_estimator_class(cls: type, spec: str) -> type:
     """``cls`` if it follows the estimator protocol (module docstring); ValueError naming
     the missing or wrong part otherwise."""
+    return _check_class(cls, spec, ESTIMATOR_STEP)
+
+
+def check_detector_class(cls: type, spec: str) -> type:
+    """``cls`` if it follows the surround detector protocol (module docstring)."""
+    return _check_class(cls, spec, DETECTOR_STEP)
+
+
+def _check_class(cls: type, spec: str, step_args: tuple[str, ...]) -> type:
     if not _accepts(cls.__init__, 2):
         raise ValueError(
             f"plug-in {spec!r}: {cls.__name__}(camera, mount, **settings) is not accepted "
             f"by its __init__{inspect.signature(cls.__init__)}"
         )
+    args = ", ".join(step_args)
     step = getattr(cls, "step", None)
     if not callable(step):
-        raise ValueError(
-            f"plug-in {spec!r}: {cls.__name__} has no method step(image, t_s, can_speed_mps)"
-        )
-    if not _accepts(step, 3):
+        raise ValueError(f"plug-in {spec!r}: {cls.__name__} has no method step({args})")
+    if not _accepts(step, len(step_args)):
         raise ValueError(
             f"plug-in {spec!r}: {cls.__name__}.step{inspect.signature(step)} does not accept "
-            "(image, t_s, can_speed_mps)"
+            f"({args})"
         )
     return cls

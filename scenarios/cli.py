@@ -178,7 +178,9 @@ def run(
         None, help="'gt': give the estimator the true road mask (a diagnostic ceiling)"
     ),
     detector: str = typer.Option(
-        "hypotheses", help="surround detector: hypotheses | paper (section 5 as written)"
+        "hypotheses",
+        help="surround detector: hypotheses | paper (section 5 as written) | a plug-in "
+        "package.module:ClassName",
     ),
     vehicle_mask: str | None = typer.Option(
         None, help="'gt': give the detector the true vehicle pixels (a diagnostic ceiling)"
@@ -186,12 +188,11 @@ def run(
 ) -> None:
     """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
     from estimator.egomotion.baselines import check_estimator
-    from estimator.surround.detection import DETECTOR_METHODS
+    from estimator.surround.plugin import check_detector
 
     try:  # the cheap inputs first: nothing is simulated or rendered for a bad one
         check_estimator(estimator)
-        if detector not in DETECTOR_METHODS:
-            raise ValueError(f"--detector {detector!r}: must be one of {list(DETECTOR_METHODS)}")
+        check_detector(detector)
         if frames is not None and frames < 1:
             raise ValueError(f"--frames {frames}: must be >= 1")
         if road_mask not in (None, "gt"):

@@ -29,6 +29,7 @@ from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
 from estimator.surround.analyzer import SurroundAnalyzer
 from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS, DetectorConfig
+from estimator.surround.plugin import check_detector, make_surround
 from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import (
@@ -125,7 +126,8 @@ def run_scenario(
     road_mask: ``"gt"`` gives the estimator each frame's true road mask (what lies
     within ``MIN_HEIGHT_M`` of the road, from the range images): the speed it then
     reaches is what a perfect road segmentation would allow, a diagnostic ceiling.
-    detector: the surround detector, `DetectorConfig.method` ("hypotheses" or "paper").
+    detector: the surround detector, `DetectorConfig.method` ("hypotheses" or "paper"),
+    or a plug-in (`estimator.surround.plugin`).
     vehicle_mask: ``"gt"`` gives the detector each frame's true vehicle pixels (id
     images) instead of its motion test: the figures it then reaches are what the plan
     view, the obstacle map and the tracker allow with a perfect segmentation, a
@@ -134,8 +136,11 @@ def run_scenario(
     checked before any rendering.
     """
     check_estimator(estimator)
-    if detector not in DETECTOR_METHODS:
-        raise ValueError(f"detector must be one of {DETECTOR_METHODS}, got {detector!r}")
+    check_detector(detector)
+    if vehicle_mask is not None and detector not in DETECTOR_METHODS:
+        raise ValueError(
+            f"vehicle_mask is for the built-in detectors, not the plug-in {detector!r}"
+        )
     if max_frames is not None and max_frames < 1:
         raise ValueError(f"max_frames must be >= 1 (or None: every frame), got {max_frames}")
     if road_mask not in (None, "gt"):
@@ -150,9 +155,9 @@ def run_scenario(
     camera, mount = load_camera(drive_dir / "camera.yaml")
     times = read_timestamps_csv(drive_dir / "timestamps.csv")
     can = read_can_csv(drive_dir / "can.csv")
-    det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m, method=detector)
+    det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
     est = make_estimator(estimator, camera, mount)
-    surround = SurroundAnalyzer(camera, mount, det_cfg)
+    surround = make_surround(detector, camera, mount, det_cfg)
     unit_rays = camera_unit_rays(camera) if road_mask else None
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None

@@ -50,7 +50,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS
+from estimator.surround.detection import DEFAULT_DETECTOR
 from scenarios.config import (
     LIBRARY_DIR,
     Scenario,
@@ -173,9 +173,10 @@ class SuiteSpec(_Strict):
     @field_validator("detectors")
     @classmethod
     def _detectors(cls, v: list[str]) -> list[str]:
+        from estimator.surround.plugin import check_detector
+
         for d in v:
-            if d not in DETECTOR_METHODS:
-                raise ValueError(f"unknown detector {d!r}; known: {list(DETECTOR_METHODS)}")
+            check_detector(d)
         if len(set(v)) != len(v):
             raise ValueError(f"detectors listed twice: {v}")
         return v
@@ -250,7 +251,7 @@ class Job:
     frames: int  # effective frame count
     render_key: str
     video: bool = True
-    detector: str = DEFAULT_DETECTOR  # or another of `DETECTOR_METHODS`
+    detector: str = DEFAULT_DETECTOR  # or another of `DETECTOR_METHODS`, or a plug-in
 
     @property
     def label(self) -> str:
