@@ -178,14 +178,14 @@ def run_scenario(
             rec = est.step(image, t, can.at(t), **masks)
             t1 = time.perf_counter()
             vmask = gt_vehicle_mask(drive_dir, k) if vehicle_mask else None
-            t1 = time.perf_counter()
+            t2 = time.perf_counter()  # the detector's time, without the truth's mask
             sf = surround.step(
                 k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps, vehicle_mask=vmask
             )
-            t2 = time.perf_counter()
+            t3 = time.perf_counter()
             if k > 0:
                 t_est.append(t1 - t0)
-                t_det.append(t2 - t1)
+                t_det.append(t3 - t2)
             records.append(rec)
             truth = gt[k]["motion_from_prev"]
             if truth is not None and hasattr(est, "point_pull"):  # (None on frame 0)
