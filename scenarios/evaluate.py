@@ -24,7 +24,6 @@ non-negative integers are refused with the file, the row and the value.
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -254,18 +253,15 @@ def evaluate_drive(
     from scenarios.metrics import plot_ego_errors
     from scenarios.report import write_run_report
     from scenarios.runner import GATE_M, VISIBLE_PX_MIN
-    from sim.drive import load_groundtruth
+    from sim.drive import DriveError, load_groundtruth
 
     if egomotion is None and tracks is None:
         raise InputError("nothing to score: give an ego-motion file, a track file or both")
     drive_dir = Path(drive_dir)
     try:
-        complete = json.loads((drive_dir / "manifest.json").read_text()).get("complete")
-    except (OSError, ValueError):
-        complete = False
-    if complete is not True:
-        raise InputError(f"{drive_dir}: not a complete rendered drive (no complete manifest.json)")
-    gt = load_groundtruth(drive_dir)
+        gt = load_groundtruth(drive_dir)
+    except (DriveError, OSError, ValueError) as e:
+        raise InputError(f"{drive_dir}: not a complete rendered drive: {e}") from None
     _, mount = load_camera(drive_dir / "camera.yaml")
     scenario = load_scenario(drive_dir / "scenario.yaml")
     max_range = scenario.detection_range_m

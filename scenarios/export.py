@@ -17,7 +17,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -34,18 +33,15 @@ class ExportError(ValueError):
 def export_drive(drive_dir: Path, fmt: str, out_dir: Path, progress: bool = True) -> list[Path]:
     """Write the drive's ground truth in ``fmt`` (`FORMATS`) under out_dir; the files."""
     from estimator.camera.files import load_camera
-    from sim.drive import load_groundtruth
+    from sim.drive import DriveError, load_groundtruth
 
     if fmt not in FORMATS:
         raise ExportError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
     drive_dir, out_dir = Path(drive_dir), Path(out_dir)
     try:
-        complete = json.loads((drive_dir / "manifest.json").read_text()).get("complete")
-    except (OSError, ValueError):
-        complete = False
-    if complete is not True:
-        raise ExportError(f"{drive_dir}: not a complete rendered drive (no complete manifest.json)")
-    gt = load_groundtruth(drive_dir)
+        gt = load_groundtruth(drive_dir)
+    except (DriveError, OSError, ValueError) as e:
+        raise ExportError(f"{drive_dir}: not a complete rendered drive: {e}") from None
     camera, _ = load_camera(drive_dir / "camera.yaml")
     out_dir.mkdir(parents=True, exist_ok=True)
     if fmt == "tum":

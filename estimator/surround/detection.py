@@ -351,7 +351,14 @@ def nearest_on_contour(
     the nearest of them is returned (the nearest contour point when no piece has
     enough points). The fit averages the range quantisation of single pixels.
     """
-    c, kc = lower_outline(xy_m, bin_rad, weak)  # contour, ordered by bearing
+    return nearest_on_outline(*lower_outline(xy_m, bin_rad, weak), split_m, min_points)
+
+
+def nearest_on_outline(
+    c: np.ndarray, kc: np.ndarray, split_m: float, min_points: int = 3
+) -> np.ndarray:
+    """`nearest_on_contour` of a lower outline (`lower_outline`: points (M, 2) [m] ordered
+    by bearing, their bins (M,))."""
     cuts = np.flatnonzero(np.diff(kc) > 3) + 1
     stack = list(np.split(c, cuts))
     pieces = []
@@ -635,23 +642,7 @@ class VehicleDetector:
             moving |= (up > cfg.score_threshold) & ok
             score = np.maximum(score, up)
         # 3. plan view, closing along the motion, blobs, obstacle map
-        plan = self._plan_mask(moving)
-        tall = self._tall_parts(plan)
-        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
-        cands = self._blobs(plan, tall)
-        self._set_scores(cands, score)
-        if cfg.refine and current_full is not None and earlier_full is not None:
-            near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
-            for c in cands:
-                if not c.hidden:
-                    self._refine(
-                        c,
-                        np.asarray(current_full, np.float32),
-                        np.asarray(earlier_full, np.float32),
-                        Hs,
-                        near,
-                    )
-        cands = self._in_range_merged(cands)
+        plan, cands = self._candidates(moving, score, current_full, earlier_full, Hs)
         # 4. full-resolution pictures (display)
         w1 = warped[1.0]
 
@@ -674,25 +665,12 @@ class VehicleDetector:
         """Steps 3-4 of `detect` on a given full-resolution vehicle mask (H, W) bool; the
         refinement takes the mask's own lower outline (every masked pixel is an edge that
         moves)."""
-        cfg = self.cfg
         full = np.asarray(vehicle_mask, bool)
         moving = (
             cv2.resize(full.astype(np.uint8), a.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
         ) & ok
         score = moving.astype(np.float32)
-        plan = self._plan_mask(moving)
-        tall = self._tall_parts(plan)
-        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
-        cands = self._blobs(plan, tall)
-        self._set_scores(cands, score)
-        if cfg.refine and current_full is not None and earlier_full is not None:
-            near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
-            cur = np.asarray(current_full, np.float32)
-            early = np.asarray(earlier_full, np.float32)
-            for c in cands:
-                if not c.hidden:
-                    self._refine(c, cur, early, maps, near, given=full)
-        cands = self._in_range_merged(cands)
+        plan, cands = self._candidates(moving, score, current_full, earlier_full, maps, full)
         return DetectionFrame(
             list(cands),
             lambda: score,
@@ -702,6 +680,32 @@ class VehicleDetector:
             score,
             (self.camera.width, self.camera.height),
         )
+
+    def _candidates(
+        self,
+        moving: np.ndarray,
+        score: np.ndarray,
+        current_full: np.ndarray | None,
+        earlier_full: np.ndarray | None,
+        maps: dict[float, tuple[np.ndarray, np.ndarray]],
+        given: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, list[Detection]]:
+        """(plan mask after closing, candidates) of a working-scale motion mask: the plan
+        view, its tall parts, the 1 x N closing, blobs, their scores, the full-resolution
+        refinement (on a ``given`` vehicle mask's outline, if any) and the range filter."""
+        plan = self._plan_mask(moving)
+        tall = self._tall_parts(plan)
+        plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
+        cands = self._blobs(plan, tall)
+        self._set_scores(cands, score)
+        if self.cfg.refine and current_full is not None and earlier_full is not None:
+            near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
+            cur = np.asarray(current_full, np.float32)
+            early = np.asarray(earlier_full, np.float32)
+            for c in cands:
+                if not c.hidden:
+                    self._refine(c, cur, early, maps, near, given=given)
+        return plan, self._in_range_merged(cands)
 
     def _detect_paper(self, a: np.ndarray, w1: np.ndarray, ok: np.ndarray) -> DetectionFrame:
         """Section 5 as the paper writes it: the road-compensated difference (eq. 22)
@@ -854,16 +858,11 @@ class VehicleDetector:
         sel = keep[lab]
         rows, cols = np.nonzero(sel)
         xy_px = self._road_xy[r0 + rows, c0 + cols].astype(float)
-        xy = nearest_on_contour(
-            xy_px,
-            cfg.refine_bearing_bin_rad,
-            cfg.refine_split_m,
-            weak=~strong[rows, cols],
-        )
+        outline, bins = lower_outline(xy_px, cfg.refine_bearing_bin_rad, ~strong[rows, cols])
+        xy = nearest_on_outline(outline, bins, cfg.refine_split_m)
         # the camera pixel of the reported point: the contour pixel nearest to it
         i = int(np.argmin(np.hypot(*(xy_px - xy).T)))
         xy = xy * self._clearance_scale
-        outline, _ = lower_outline(xy_px, cfg.refine_bearing_bin_rad, weak=~strong[rows, cols])
         det.box = fit_box(outline * self._clearance_scale, self._box_cfg)
         det.x_m, det.y_m = float(xy[0]), float(xy[1])
         det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
