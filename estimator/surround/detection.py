@@ -24,26 +24,20 @@ change from an earlier frame best ("independent motion OR height"):
   R stripped of the car's yaw (`moving_lambdas`); more generally a vehicle
   driving forward at ground speed v_g has ``lambda = (1 - v_g/v_ego) h/(h - z)``,
   which is < 1 for every forward-moving vehicle faster than ~(1 - (h - z)/h) v_ego.
-  A vehicle the ego car overtakes is between the two (lambda ~ 0.3-0.7 at its
-  lower parts): the moving hypotheses are lambda = 0 and 0.5, so that its
-  residual under the nearest one is a quarter of the road's at most.
 
 For each hypothesis the earlier frame is warped onto the current one
 (`estimator.egomotion.compensation`); ``E_lambda = <(I - I_lambda)^2>`` is the
 Gaussian-windowed residual energy. The score
 
-    m = (min_static E - min_moving E) / (k + <|g|^2> sigma^2)
+    m = (min_static E - min_moving E) / (S + k + <|g|^2> sigma^2)
 
 is positive where a moving hypothesis explains the pixel better than every
-static one, in units of the residual that noise and misregistration leave: ``k`` a
-noise floor [grey level^2] and ``<|g|^2> sigma^2`` the residual that a misregistration
-of sigma px leaves on an edge (aliasing of the render, interpolation, ego-motion
-error). Where the texture is the same under every hypothesis (uniform paint, streaks
-along the flow) both energies are small and nothing is decided. A score relative to the
-road-vs-co-moving contrast ``S = <(I_1 - I_0)^2>`` instead (eq. 22's normalisation, for
-two hypotheses) is the same for every texture and cannot exceed ``1 - 2 lambda`` for a
-vehicle at lambda: it misses every vehicle the ego car overtakes at more than a quarter
-of its speed (docs/DESIGN.md). The score is
+static one. ``S = <(I_1 - I_0)^2>`` (how different the road and the co-moving
+predictions are there: where the texture is the same either way, e.g. streaks
+along the flow, nothing can be decided), ``k`` a noise floor [grey level^2] and
+``<|g|^2> sigma^2`` the residual that a misregistration of sigma px leaves on
+an edge (aliasing of the render, interpolation, ego-motion error). It is like
+eq. 22's normalisation, for two hypotheses instead of one. The score is
 computed at the working scale and one coarser pyramid level (a vehicle close
 by moves tens of pixels: the coarse level keeps the hypotheses apart).
 
@@ -127,12 +121,11 @@ class DetectorConfig:
     # (finer steps near the road: periodic structure such as guard-rail posts must not
     # fit the moving hypothesis better than every static one by aliasing)
     static_lambdas: tuple[float, ...] = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)  # [-] incl. 1.0
-    # moving points: fixed to the car (0.0, required) and halfway to the road (overtaken)
-    moving_lambdas: tuple[float, ...] = (0.0, 0.5)  # [-] each < 1
+    moving_lambdas: tuple[float, ...] = (0.0,)  # [-] must include 0.0 (fixed to the car)
     window_px: float = 10.0  # [px] Gaussian window (K) of the residual energies
     energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
-    score_threshold: float = 1.0  # [-] m above which a pixel is independently moving
+    score_threshold: float = 0.5  # [-] m above which a pixel is independently moving
     border_margin_px: int = 12  # [px] margin inside the field of view's outer rim left out
     # margin along the inner edge (the omni camera's car-body mask): the mask already ends
     # ~45 px beyond the car body, and at that edge 1 px is ~0.25 m of road: a wide margin
@@ -165,8 +158,8 @@ class DetectorConfig:
     # full-resolution refinement of the nearest point (the blob's lowest moving edge)
     refine: bool = True  # [-] refine each blob's nearest point at full resolution
     refine_radius_px: int = 24  # [px] half-size of the search window around the coarse point
-    refine_threshold: float = 0.6  # [-] score m (3 x 3 window) of a moving edge pixel
-    refine_weak_threshold: float = 0.2  # [-] m of an edge pixel linked to a moving one
+    refine_threshold: float = 0.3  # [-] score m (3 x 3 window) of a moving edge pixel
+    refine_weak_threshold: float = 0.1  # [-] m of an edge pixel linked to a moving one
     refine_min_gradient: float = 6.0  # [grey level/px] edge of the current frame
     refine_back_m: float = 3.0  # [m] the refined point may be this much nearer than the coarse
     # the vehicle's lower contour (nearest moving edge per bearing bin) is fitted with
@@ -920,12 +913,14 @@ class VehicleDetector:
         sigma: float,
         box: bool = False,
     ) -> np.ndarray:
-        """m = (min_static E - min_moving E) / (k + <|g|^2> sigma^2), 0 outside ok.
+        """m = (min_static E - min_moving E) / (S + k + <|g|^2> sigma^2), 0 outside ok.
 
         <.>: Gaussian window K [px] (``box``: a K x K box).
         """
-        E_sta, E_mov, G2, _ = VehicleDetector._energies(a, warped, ok, K, box)
-        m = (E_sta - E_mov) / (k + G2 * sigma * sigma)
+        E_sta, E_mov, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
+        sep = (warped[1.0] - warped[0.0]) * ok.astype(np.float32)
+        S = avg(sep * sep)
+        m = (E_sta - E_mov) / (S + k + G2 * sigma * sigma)
         m[~ok] = 0.0
         return m
 
