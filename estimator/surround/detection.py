@@ -69,11 +69,14 @@ and m decides nothing, while a crossing vehicle is explained by none of them.
 There, as in eq. 22, a pixel that no static hypothesis explains is moving:
 ``r = min_static E / (k + <|g|^2> sigma^2) > still_threshold``.
 
-Not detected: vehicles that do not move over the ground when the ego car does
-not either (nothing distinguishes them from static structure in two frames)
-and, while the ego car moves, vehicles whose motion is not forward along the
-road (crossing traffic): those must show a larger-than-static parallax
-(lambda > max static) or be tracked; see `estimator.surround.analyzer`.
+Not detected: vehicles the ego car overtakes at more than about a quarter of its
+speed (in the small-motion limit ``E_lambda ~ (lambda - lambda*)^2 S``, so m is about
+``1 - 2 lambda*`` for a point at lambda*, below the threshold for lambda* > 0.25:
+docs/DESIGN.md, "the motion score's units"); vehicles that do not move over the
+ground when the ego car does not either (nothing distinguishes them from static
+structure in two frames) and, while the ego car moves, vehicles whose motion is not
+forward along the road (crossing traffic): those must show a larger-than-static
+parallax (lambda > max static) or be tracked; see `estimator.surround.analyzer`.
 """
 
 from __future__ import annotations
