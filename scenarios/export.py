@@ -13,6 +13,11 @@
   with what it belongs to (the world, a vehicle's rigid motion, or the ego car: then 0)
   and projected with the camera model at frame k + 1's pose. NaN where the point has no
   surface (sky), its vehicle has left, or it leaves the field of view.
+- ``mot``: MOTChallenge ground truth of the bench's tracking evaluation set, the layout
+  TrackEval's ``MotChallenge2DBox`` reads (``mot/<seq>/gt/gt.txt``, ``seqinfo.ini``,
+  ``mot/seqmaps/omnibench-all.txt``; boxes the plan-view extents of the footprints in the
+  ego road frame [m], `scenarios.mot`); with a track file, its tracks too
+  (``trackers/tracker/data/<seq>.txt``).
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-FORMATS = ("tum", "depth", "coco", "flow")
+FORMATS = ("tum", "depth", "coco", "flow", "mot")
 RANGE_UNIT_M = 0.01  # [m] per unit of the range images (sim/drive.py)
 ROAD_Z_M = 0.05  # [m] a static surface within this of the road plane is the road
 
@@ -30,20 +35,38 @@ class ExportError(ValueError):
     """A format or a drive that cannot be exported; names it."""
 
 
-def export_drive(drive_dir: Path, fmt: str, out_dir: Path, progress: bool = True) -> list[Path]:
-    """Write the drive's ground truth in ``fmt`` (`FORMATS`) under out_dir; the files."""
+def export_drive(
+    drive_dir: Path,
+    fmt: str,
+    out_dir: Path,
+    progress: bool = True,
+    tracks: Path | None = None,
+) -> list[Path]:
+    """Write the drive's ground truth in ``fmt`` (`FORMATS`) under out_dir; the files.
+
+    tracks: a track file (``tracks.csv`` or any file `omnibench evaluate` reads), for
+    ``mot`` only: written beside the ground truth as TrackEval's tracker files."""
     from estimator.camera.files import load_camera
+    from scenarios.evaluate import InputError, read_tracks_input
     from sim.drive import DriveError, load_groundtruth
 
     if fmt not in FORMATS:
         raise ExportError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    if tracks is not None and fmt != "mot":
+        raise ExportError(f"a track file is exported with --format mot, not {fmt!r}")
     drive_dir, out_dir = Path(drive_dir), Path(out_dir)
     try:
         gt = load_groundtruth(drive_dir)
     except (DriveError, OSError, ValueError) as e:
         raise ExportError(f"{drive_dir}: not a complete rendered drive: {e}") from None
+    try:
+        trk = read_tracks_input(tracks, len(gt)) if tracks is not None else None
+    except InputError as e:
+        raise ExportError(str(e)) from None
     camera, _ = load_camera(drive_dir / "camera.yaml")
     out_dir.mkdir(parents=True, exist_ok=True)
+    if fmt == "mot":
+        return _export_mot(drive_dir, out_dir, gt, trk, tracks)
     if fmt == "tum":
         from scenarios.tum import write_groundtruth_tum
 
@@ -60,6 +83,29 @@ def _frames(n: int, what: str, progress: bool):
     from estimator.progress import track
 
     return track(range(n), n, what, progress)
+
+
+def _export_mot(
+    drive_dir: Path, out_dir: Path, gt: list[dict], trk: dict | None, tracks: Path | None
+) -> list[Path]:
+    from scenarios import mot
+    from scenarios.config import load_scenario
+    from scenarios.evaluate import track_frames
+
+    scenario = load_scenario(drive_dir / "scenario.yaml")
+    seq = mot.sequence_name(scenario.name)
+    frames = track_frames(trk or {}, gt, scenario.detection_range_m)
+    if trk is not None and not mot.track_rows(frames):
+        raise ExportError(
+            f"{tracks}: no track with a box (box_x_m, box_y_m, box_yaw_rad, box_length_m, "
+            "box_width_m) in frames 1 .. N-1: a MOT row is a box"
+        )
+    files = mot.write_gt(frames, out_dir / "mot", seq, scenario.fps)
+    if trk is not None:
+        path = out_dir / "trackers" / mot.TRACKER / "data" / f"{seq}.txt"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        files.append(mot.write_tracks(frames, path))
+    return files
 
 
 def _export_depth(drive_dir: Path, out_dir: Path, n: int, progress: bool) -> list[Path]:

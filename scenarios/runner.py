@@ -2,9 +2,10 @@
 track vehicles, and measure everything against ground truth.
 
 Writes into ``out/``: ``drive/`` (the render, see sim.drive), ``egomotion.csv``,
-``tracks.csv``, ``ego_error.png``, ``tracks.png``, ``surround.png`` (a still of
-the side-by-side panels), ``analysis.mp4`` (the side-by-side video),
-``report.html`` and ``metrics.json`` (written last).
+``tracks.csv``, ``tracks.mot.txt`` (the tracks with a box as MOTChallenge rows,
+`scenarios.mot`; none when no track has a box), ``ego_error.png``, ``tracks.png``,
+``surround.png`` (a still of the side-by-side panels), ``analysis.mp4`` (the
+side-by-side video), ``report.html`` and ``metrics.json`` (written last).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ from scenarios.metrics import (
     plot_ego_errors,
     read_egomotion_csv,
 )
+from scenarios.mot import write_tracks as write_mot_tracks
 from scenarios.point_audit import (
     PullMap,
     camera_unit_rays,
@@ -249,11 +251,11 @@ def run_scenario(
     mcfg = MetricsConfig(gate_m=GATE_M)
     det_m = evaluate(eval_det, mcfg)
     # the tracks are scored from tracks.csv as written, as `omnibench evaluate` scores them
-    trk = track_sections(
-        track_frames(read_tracks_input(out_dir / "tracks.csv", len(gt)), gt, det_cfg.max_range_m),
-        mcfg,
-        det_cfg.max_range_m,
+    trk_frames = track_frames(
+        read_tracks_input(out_dir / "tracks.csv", len(gt)), gt, det_cfg.max_range_m
     )
+    write_mot_tracks(trk_frames, out_dir / "tracks.mot.txt")
+    trk = track_sections(trk_frames, mcfg, det_cfg.max_range_m)
     viz.plot_recall_polar(
         trk["surround"]["recall_polar"],
         out_dir / "recall_polar.png",
