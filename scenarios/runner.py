@@ -73,16 +73,21 @@ def ego_road_frame(gt_frame: dict) -> tuple[np.ndarray, np.ndarray]:
     return rot_z(yaw)[:2, :2], T[:2, 3]
 
 
+def vehicle_footprint(gt_frame: dict, vehicle: dict) -> np.ndarray:
+    """(4, 2) footprint corners [m] of a GT record's vehicle in the ego road frame."""
+    R, o = ego_road_frame(gt_frame)
+    box = np.asarray(vehicle["box_world_m"])[:4, :2]  # bottom corners (sim.scene convention)
+    return (box - o) @ R  # R^T (p - o)
+
+
 def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicle], np.ndarray]:
     """Vehicles visible (>= VISIBLE_PX_MIN px) within max_range_m, as footprints in the
     ego road frame with their motion relative to the ego car (`motion_class`); also
     (N, 2) all their footprint centres (for drawing)."""
-    R, o = ego_road_frame(gt_frame)
     ego = gt_frame["ego"]
     out, centres = [], []
     for v in gt_frame["vehicles"]:
-        box = np.asarray(v["box_world_m"])[:4, :2]  # bottom corners (sim.scene convention)
-        foot = (box - o) @ R  # R^T (p - o)
+        foot = vehicle_footprint(gt_frame, v)
         centres.append(foot.mean(axis=0))
         if v["visible_px"] < VISIBLE_PX_MIN:
             continue
