@@ -13,6 +13,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
 
+from scenarios.export import FORMATS as EXPORT_FORMATS  # noqa: E402
+
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
@@ -278,14 +280,17 @@ def evaluate(
 @app.command()
 def export(
     drive: Path = typer.Argument(..., help="a rendered drive folder (omnibench render, run)"),
-    format: str = typer.Option(..., "--format", help="tum | depth | coco | flow"),
+    format: str = typer.Option(..., "--format", help=" | ".join(EXPORT_FORMATS)),
     out: Path = typer.Option(..., "--out", help="output folder"),
+    tracks: Path | None = typer.Option(
+        None, help="with --format mot: a track file (tracks.csv) as TrackEval's tracker file"
+    ),
 ) -> None:
     """Write a drive's ground truth in formats other tools read (docs/FORMATS.md)."""
     from scenarios.export import ExportError, export_drive
 
     try:
-        files = export_drive(drive, format, out)
+        files = export_drive(drive, format, out, tracks=tracks)
     except (ExportError, FileNotFoundError) as e:
         _fail(str(e))
     console.print(f"{len(files)} file(s) -> {out}")

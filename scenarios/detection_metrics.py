@@ -23,6 +23,12 @@ is at most ``gate_m`` (`MetricsConfig`). Pairs beyond the gate never match.
   gate); reported as the mean of HOTA over its alpha thresholds 0.05 ... 0.95.
   A pair with similarity below alpha does not match at that alpha, so a
   hypothesis d from the footprint counts at the alphas <= 1 - d / gate_m.
+- box HOTA (``hota_box``, ``deta_box``, ``assa_box``): the same, with similarity the
+  IoU of plan-view axis-aligned boxes (`plan_box_xywh`): the vehicle's footprint's
+  and the hypothesis' box's, computed as TrackEval's ``MotChallenge2DBox`` computes
+  it (`box_iou_xywh`), so that TrackEval run on the MOT files of `scenarios.mot`
+  reproduces it. Only hypotheses with a box take part (the others are left out, as
+  they are of the MOT files).
 - localisation: for each detection-matched pair, the distance from the
   hypothesis to the vehicle's footprint point nearest to the camera (the point
   the detector is supposed to report), not to the footprint (which is 0 inside).
@@ -135,26 +141,68 @@ class GtVehicle:
         yaw_rad: float,
     ) -> GtVehicle:
         """Footprint of a box: centre (x, y) [m], length along its heading, yaw to ego x [rad]."""
-        c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-        half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length_m / 2, width_m / 2]
-        R = np.array([[c, -s], [s, c]])
-        return cls(int(vehicle_id), half @ R.T + [x_m, y_m])
+        return cls(int(vehicle_id), box_footprint(x_m, y_m, length_m, width_m, yaw_rad))
+
+
+def box_footprint(
+    x_m: float, y_m: float, length_m: float, width_m: float, yaw_rad: float
+) -> np.ndarray:
+    """(4, 2) corners [m] (counter-clockwise) of a box: centre (x, y), length along its
+    heading yaw [rad] from the x axis, width across it."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length_m / 2, width_m / 2]
+    return half @ np.array([[c, -s], [s, c]]).T + [x_m, y_m]
+
+
+def plan_box_xywh(corners_xy: np.ndarray) -> np.ndarray:
+    """(4,) plan-view axis-aligned extent of points (N, 2) [m]: (x min, y min, x extent,
+    y extent), the ``xywh`` layout of TrackEval (x of the frame as its x, y as its y)."""
+    p = np.asarray(corners_xy, dtype=float).reshape(-1, 2)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    return np.array([lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1]])
+
+
+def box_iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(A, B) IoU of axis-aligned boxes a (A, 4) and b (B, 4) in the ``xywh`` layout, with
+    the arithmetic of TrackEval's ``_calculate_box_ious`` (far corners as x + w, y + h;
+    0 for a box of area <= eps), so that both give the same floats."""
+    eps = np.finfo("float").eps
+    a = np.asarray(a, dtype=float).reshape(-1, 4)
+    b = np.asarray(b, dtype=float).reshape(-1, 4)
+    a = np.column_stack([a[:, 0], a[:, 1], a[:, 0] + a[:, 2], a[:, 1] + a[:, 3]])
+    b = np.column_stack([b[:, 0], b[:, 1], b[:, 0] + b[:, 2], b[:, 1] + b[:, 3]])
+    lo = np.minimum(a[:, None, :], b[None, :, :])
+    hi = np.maximum(a[:, None, :], b[None, :, :])
+    inter = np.maximum(lo[..., 2] - hi[..., 0], 0) * np.maximum(lo[..., 3] - hi[..., 1], 0)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    inter[area_a <= 0 + eps, :] = 0
+    inter[:, area_b <= 0 + eps] = 0
+    inter[union <= 0 + eps] = 0
+    union[union <= 0 + eps] = 1
+    return inter / union
 
 
 @dataclass
 class EvalFrame:
     """One frame: ground truth (evaluation set), hypotheses (id, x [m], y [m]) and whether
     the ego car moves (`EGO_MOVING_MPS`); optionally each hypothesis's box centre (x, y)
-    [m] (NaN where it has no box), empty when none has one."""
+    [m] (NaN where it has no box), empty when none has one; optionally each hypothesis's
+    box (x, y [m], yaw [rad], length, width [m]; NaN where it has none), empty when none
+    has one: ``hyp_box_xywh`` (H, 4) its plan-view extent (`plan_box_xywh`), NaN rows
+    where none."""
 
     gt: Sequence[GtVehicle]
     hypotheses: Sequence[tuple[int, float, float]] = ()
     t_s: float = NAN
     ego_moving: bool = True
     centres: Sequence[tuple[float, float]] = ()
+    boxes: Sequence[tuple[float, float, float, float, float]] = ()
     hyp_ids: np.ndarray = field(init=False, repr=False)
     hyp_xy: np.ndarray = field(init=False, repr=False)
     hyp_centre_xy: np.ndarray = field(init=False, repr=False)
+    hyp_box_xywh: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.gt = list(self.gt)
@@ -167,6 +215,14 @@ class EvalFrame:
         if len(c) not in (0, len(h)):
             raise ValueError(f"frame t={self.t_s}: {len(c)} box centres for {len(h)} hypotheses")
         self.hyp_centre_xy = c if len(c) else np.full((len(h), 2), NAN)
+        b = np.array(list(self.boxes), float).reshape(-1, 5)
+        if len(b) not in (0, len(h)):
+            raise ValueError(f"frame t={self.t_s}: {len(b)} boxes for {len(h)} hypotheses")
+        self.hyp_box_xywh = np.full((len(h), 4), NAN)
+        for i, box in enumerate(b):
+            if np.all(np.isfinite(box)):
+                x, y, yaw, length, width = box
+                self.hyp_box_xywh[i] = plan_box_xywh(box_footprint(x, y, length, width, yaw))
         gt_ids = [g.id for g in self.gt]
         for name, ids in (("ground-truth", gt_ids), ("hypothesis", self.hyp_ids.tolist())):
             if len(set(ids)) != len(ids):
@@ -236,26 +292,46 @@ def _gated_assignment(D: np.ndarray, gate: float) -> list[tuple[int, int]]:
 
 
 # ------------------------------------------------------------------ metrics
-def _hota(frames: Sequence[EvalFrame], dists: Sequence[np.ndarray], gate: float) -> float:
-    """Mean over alpha of TrackEval's HOTA, similarity max(0, 1 - d / gate)."""
+def _hota(
+    gt_ids: Sequence[np.ndarray], hyp_ids: Sequence[np.ndarray], sims: Sequence[np.ndarray]
+) -> dict[str, float]:
+    """TrackEval's HOTA, DetA and AssA (means over alpha) of per-frame ids (G,), (H,) and
+    similarities (G, H)."""
     # TrackEval wants ids 0..n-1 with every id present somewhere: an id that never
     # appears gives 0/0 in its global alignment score and a NaN cost matrix
-    gt_index = {g: k for k, g in enumerate(sorted({g.id for f in frames for g in f.gt}))}
-    hyp_index = {h: k for k, h in enumerate(sorted({int(h) for f in frames for h in f.hyp_ids}))}
+    gt_index = {g: k for k, g in enumerate(sorted({int(g) for f in gt_ids for g in f}))}
+    hyp_index = {h: k for k, h in enumerate(sorted({int(h) for f in hyp_ids for h in f}))}
     data = {
-        "num_timesteps": len(frames),
+        "num_timesteps": len(sims),
         "num_gt_ids": len(gt_index),
         "num_tracker_ids": len(hyp_index),
-        "num_gt_dets": sum(len(f.gt) for f in frames),
-        "num_tracker_dets": sum(len(f.hyp_ids) for f in frames),
-        "gt_ids": [np.array([gt_index[g.id] for g in f.gt], dtype=int) for f in frames],
-        "tracker_ids": [
-            np.array([hyp_index[int(h)] for h in f.hyp_ids], dtype=int) for f in frames
-        ],
-        "similarity_scores": [np.clip(1.0 - D / gate, 0.0, 1.0) for D in dists],
+        "num_gt_dets": sum(len(f) for f in gt_ids),
+        "num_tracker_dets": sum(len(f) for f in hyp_ids),
+        "gt_ids": [np.array([gt_index[int(g)] for g in f], dtype=int) for f in gt_ids],
+        "tracker_ids": [np.array([hyp_index[int(h)] for h in f], dtype=int) for f in hyp_ids],
+        "similarity_scores": list(sims),
     }
     res = HOTA().eval_sequence(data)
-    return float(np.mean(res["HOTA"]))
+    return {k: float(np.mean(res[k])) for k in ("HOTA", "DetA", "AssA")}
+
+
+def _hota_point(frames: Sequence[EvalFrame], dists: Sequence[np.ndarray], gate: float) -> float:
+    """Mean over alpha of TrackEval's HOTA, similarity max(0, 1 - d / gate)."""
+    sims = [np.clip(1.0 - D / gate, 0.0, 1.0) for D in dists]
+    return _hota([f.gt_ids for f in frames], [f.hyp_ids for f in frames], sims)["HOTA"]
+
+
+def _hota_box(frames: Sequence[EvalFrame]) -> dict[str, float]:
+    """HOTA, DetA, AssA with similarity the IoU of plan-view boxes (module docstring),
+    over every frame, of the hypotheses with a box."""
+    gt_ids, hyp_ids, sims = [], [], []
+    for f in frames:
+        has = np.all(np.isfinite(f.hyp_box_xywh), axis=1)
+        gt_box = np.array([plan_box_xywh(g.footprint_xy) for g in f.gt]).reshape(-1, 4)
+        gt_ids.append(f.gt_ids)
+        hyp_ids.append(f.hyp_ids[has])
+        sims.append(box_iou_xywh(gt_box, f.hyp_box_xywh[has]))
+    return _hota(gt_ids, hyp_ids, sims)
 
 
 def _motmetrics(frames: Sequence[EvalFrame], dists: Sequence[np.ndarray], gate: float) -> dict:
@@ -278,7 +354,8 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
     """Detection, tracking and localisation metrics of a sequence.
 
     Returns ``{"gate_m", "counts", "detection": {"recall", "precision", "gt_count",
-    "matched"}, "tracking": {"mota", "idf1", "hota", "id_switches"},
+    "matched"}, "tracking": {"mota", "idf1", "hota", "id_switches", "hota_box",
+    "deta_box", "assa_box"},
     "localization": {"median_error_m", "p90_error_m", "centre_median_error_m",
     "centre_p90_error_m"}, "nan_reasons"}`` with
     plain Python numbers (JSON-ready). ``nan_reasons`` maps "section.metric" to
@@ -340,12 +417,19 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
     mot = {"mota": NAN, "idf1": NAN, "num_switches": 0, "num_matches": 0}
     mot |= {"num_false_positives": hyp_count, "num_misses": 0}
     hota = NAN
+    box_hyp_count = sum(int(np.all(np.isfinite(f.hyp_box_xywh), axis=1).sum()) for f in frames)
+    box = {"HOTA": NAN, "DetA": NAN, "AssA": NAN}
+    box_keys = ("tracking.hota_box", "tracking.deta_box", "tracking.assa_box")
     if gt_count == 0:
-        for key in ("tracking.mota", "tracking.idf1", "tracking.hota"):
+        for key in ("tracking.mota", "tracking.idf1", "tracking.hota", *box_keys):
             reasons[key] = "no ground-truth vehicle"
     elif frames:
         mot = _motmetrics(frames, dists, cfg.gate_m)
-        hota = _hota(frames, dists, cfg.gate_m)
+        hota = _hota_point(frames, dists, cfg.gate_m)
+        if box_hyp_count:
+            box = _hota_box(frames)
+        else:
+            reasons.update(dict.fromkeys(box_keys, "no hypothesis with a box"))
 
     return {
         "gate_m": float(cfg.gate_m),
@@ -363,6 +447,7 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "mot_misses": int(mot["num_misses"]),
             "localization_pairs": int(errors.size),
             "centre_pairs": int(centre_err.size),
+            "box_hyp_count": box_hyp_count,
         },
         "detection": {
             "recall": recall,
@@ -375,6 +460,9 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "idf1": float(mot["idf1"]),
             "hota": hota,
             "id_switches": int(mot["num_switches"]),
+            "hota_box": box["HOTA"],
+            "deta_box": box["DetA"],
+            "assa_box": box["AssA"],
         },
         "localization": {
             "median_error_m": median_err,

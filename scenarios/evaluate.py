@@ -13,7 +13,8 @@ Inputs (CSV with a header; other columns are ignored):
   `omnibench run` does, and A's metrics are computed too.
 - tracks: at least ``frame, track_id, x_m, y_m`` (the vehicle's point in the ego road
   frame [m]); optionally the box columns of ``tracks.csv`` (``box_x_m, box_y_m``: the
-  box centre, scored against the vehicle's footprint centre).
+  box centre, scored against the vehicle's footprint centre; with ``box_yaw_rad,
+  box_length_m, box_width_m`` too, the box, scored by the box HOTA).
 
 Every frame 1 .. N-1 of the drive must have an ego-motion row; a track file lists only
 the frames with tracks. Frames outside 0 .. N-1, a frame twice (ego-motion) or a track id
@@ -122,11 +123,13 @@ def read_egomotion_input(path: Path, n_frames: int) -> dict[str, np.ndarray]:
     return arrays
 
 
-def read_tracks_input(
-    path: Path, n_frames: int
-) -> dict[int, list[tuple[int, float, float, float, float]]]:
-    """{frame: [(track id, x, y, box x, box y)]} of a track file, checked (box NaN when
-    the file has no box columns or the row leaves them empty)."""
+TRACK_BOX_COLUMNS = ("box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m")
+
+
+def read_tracks_input(path: Path, n_frames: int) -> dict[int, list[tuple]]:
+    """{frame: [(track id, x, y, box x, box y, box yaw, box length, box width)]} of a
+    track file, checked ([m], [rad]; a box value NaN when the file has not its column or
+    the row leaves it empty)."""
     path = Path(path)
     rows = _rows(path, TRACKS_REQUIRED)
     out: dict[int, list] = defaultdict(list)
@@ -147,9 +150,11 @@ def read_tracks_input(
             )
         first[(k, tid)] = line
         x, y = _number(path, line, r, "x_m"), _number(path, line, r, "y_m")
-        bx = _number(path, line, r, "box_x_m", allow_nan=True) if "box_x_m" in r else math.nan
-        by = _number(path, line, r, "box_y_m", allow_nan=True) if "box_y_m" in r else math.nan
-        out[k].append((tid, x, y, bx, by))
+        box = tuple(
+            _number(path, line, r, c, allow_nan=True) if c in r else math.nan
+            for c in TRACK_BOX_COLUMNS
+        )
+        out[k].append((tid, x, y, *box))
     return dict(out)
 
 
@@ -207,6 +212,7 @@ def track_frames(tracks: dict[int, list], gt: list[dict], max_range_m: float) ->
                 float(gt[k]["t_s"]),
                 speed is None or speed > EGO_MOVING_MPS,
                 [r[3:5] for r in rows],
+                [r[3:8] for r in rows],
             )
         )
     return frames

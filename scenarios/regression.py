@@ -41,6 +41,7 @@ DIRECTIONS: dict[str, int] = {
     "tracking.mota": +1,
     "tracking.idf1": +1,
     "tracking.hota": +1,
+    "tracking.hota_box": +1,
     "ego.speed_rmse_mps": -1,
     "ego.speed_rmse_pct": -1,
     "ego.yaw_rate_rmse_dps": -1,

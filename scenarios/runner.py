@@ -2,9 +2,10 @@
 track vehicles, and measure everything against ground truth.
 
 Writes into ``out/``: ``drive/`` (the render, see sim.drive), ``egomotion.csv``,
-``tracks.csv``, ``ego_error.png``, ``tracks.png``, ``surround.png`` (a still of
-the side-by-side panels), ``analysis.mp4`` (the side-by-side video),
-``report.html`` and ``metrics.json`` (written last).
+``tracks.csv``, ``tracks.mot.txt`` (the tracks with a box as MOTChallenge rows,
+`scenarios.mot`; none when no track has a box), ``ego_error.png``, ``tracks.png``,
+``surround.png`` (a still of the side-by-side panels), ``analysis.mp4`` (the
+side-by-side video), ``report.html`` and ``metrics.json`` (written last).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ from scenarios.metrics import (
     plot_ego_errors,
     read_egomotion_csv,
 )
+from scenarios.mot import write_tracks as write_mot_tracks
 from scenarios.point_audit import (
     PullMap,
     camera_unit_rays,
@@ -71,16 +73,21 @@ def ego_road_frame(gt_frame: dict) -> tuple[np.ndarray, np.ndarray]:
     return rot_z(yaw)[:2, :2], T[:2, 3]
 
 
+def vehicle_footprint(gt_frame: dict, vehicle: dict) -> np.ndarray:
+    """(4, 2) footprint corners [m] of a GT record's vehicle in the ego road frame."""
+    R, o = ego_road_frame(gt_frame)
+    box = np.asarray(vehicle["box_world_m"])[:4, :2]  # bottom corners (sim.scene convention)
+    return (box - o) @ R  # R^T (p - o)
+
+
 def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicle], np.ndarray]:
     """Vehicles visible (>= VISIBLE_PX_MIN px) within max_range_m, as footprints in the
     ego road frame with their motion relative to the ego car (`motion_class`); also
     (N, 2) all their footprint centres (for drawing)."""
-    R, o = ego_road_frame(gt_frame)
     ego = gt_frame["ego"]
     out, centres = [], []
     for v in gt_frame["vehicles"]:
-        box = np.asarray(v["box_world_m"])[:4, :2]  # bottom corners (sim.scene convention)
-        foot = (box - o) @ R  # R^T (p - o)
+        foot = vehicle_footprint(gt_frame, v)
         centres.append(foot.mean(axis=0))
         if v["visible_px"] < VISIBLE_PX_MIN:
             continue
@@ -249,11 +256,11 @@ def run_scenario(
     mcfg = MetricsConfig(gate_m=GATE_M)
     det_m = evaluate(eval_det, mcfg)
     # the tracks are scored from tracks.csv as written, as `omnibench evaluate` scores them
-    trk = track_sections(
-        track_frames(read_tracks_input(out_dir / "tracks.csv", len(gt)), gt, det_cfg.max_range_m),
-        mcfg,
-        det_cfg.max_range_m,
+    trk_frames = track_frames(
+        read_tracks_input(out_dir / "tracks.csv", len(gt)), gt, det_cfg.max_range_m
     )
+    write_mot_tracks(trk_frames, out_dir / "tracks.mot.txt")
+    trk = track_sections(trk_frames, mcfg, det_cfg.max_range_m)
     viz.plot_recall_polar(
         trk["surround"]["recall_polar"],
         out_dir / "recall_polar.png",

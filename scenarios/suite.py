@@ -101,6 +101,7 @@ KNOWN_METRICS = (
     "tracking.idf1",
     "tracking.hota",
     "tracking.id_switches",
+    "tracking.hota_box",
     "localization.median_error_m",
     "localization.p90_error_m",
     "localization.centre_median_error_m",

@@ -15,11 +15,14 @@ from scenarios.detection_metrics import (
     EvalFrame,
     GtVehicle,
     MetricsConfig,
+    box_footprint,
+    box_iou_xywh,
     breakdown,
     evaluate,
     hypotheses_from_tracks,
     motion_class,
     nearest_footprint_point,
+    plan_box_xywh,
     point_footprint_distance,
     recall_by_bearing,
     recall_by_range,
@@ -29,7 +32,7 @@ from scenarios.detection_metrics import (
 
 SECTIONS = {
     "detection": {"recall", "precision", "gt_count", "matched"},
-    "tracking": {"mota", "idf1", "hota", "id_switches"},
+    "tracking": {"mota", "idf1", "hota", "id_switches", "hota_box", "deta_box", "assa_box"},
     "localization": {
         "median_error_m", "p90_error_m", "centre_median_error_m", "centre_p90_error_m"
     },
@@ -92,6 +95,7 @@ def test_perfect_hypotheses_score_one():
             two_cars(k),
             [seen(g, 10 + g.id) for g in two_cars(k)],
             centres=[tuple(g.footprint_xy.mean(axis=0)) for g in two_cars(k)],
+            boxes=[(*g.footprint_xy.mean(axis=0), 0.0, 4.0, 2.0) for g in two_cars(k)],
         )
         for k in range(10)
     ]
@@ -101,6 +105,7 @@ def test_perfect_hypotheses_score_one():
     assert m["detection"] == {"recall": 1.0, "precision": 1.0, "gt_count": 20, "matched": 20}
     assert m["tracking"]["mota"] == 1.0 and m["tracking"]["idf1"] == 1.0
     assert m["tracking"]["hota"] == pytest.approx(1.0) and m["tracking"]["id_switches"] == 0
+    assert m["tracking"]["hota_box"] == pytest.approx(1.0) and m["counts"]["box_hyp_count"] == 20
     assert m["localization"] == {
         "median_error_m": 0.0,
         "p90_error_m": 0.0,
@@ -127,6 +132,50 @@ def test_box_centre_error_of_matched_hypotheses_with_a_box():
     assert "localization.centre_median_error_m" in none["nan_reasons"]
     with pytest.raises(ValueError, match="1 box centres for 3 hypotheses"):
         EvalFrame([a], [(5, 7.5, 0.0), (6, 1.0, 1.0), (7, 2.0, 2.0)], centres=[(1.0, 1.0)])
+
+
+def test_box_iou_is_trackevals_to_the_bit():
+    """`box_iou_xywh` against TrackEval's own IoU (MotChallenge2DBox's, ``xywh``), boxes of
+    random rotated footprints, touching and empty boxes included."""
+    from trackeval.datasets._base_dataset import _BaseDataset
+
+    rng = np.random.default_rng(3)
+    boxes = [
+        plan_box_xywh(box_footprint(*rng.uniform(-20, 20, 2), *rng.uniform(1, 5, 2), a))
+        for a in rng.uniform(-math.pi, math.pi, 40)
+    ]
+    a = np.array(boxes[:25] + [[0.0, 0.0, 0.0, 1.0]])  # the last: no area
+    b = np.array(boxes[25:] + [[a[0, 0] + a[0, 2], a[0, 1], 2.0, 2.0]])  # the last: touches
+    ours = box_iou_xywh(a, b)
+    assert np.array_equal(ours, _BaseDataset._calculate_box_ious(a, b, box_format="xywh"))
+    assert (ours > 0).sum() >= 3 and ours[-1].max() == 0.0 and ours[0, -1] == 0.0
+    # plan view of a 4 x 2 car turned 90 deg: 2 x 4
+    assert plan_box_xywh(box_footprint(10.0, 0.0, 4.0, 2.0, math.pi / 2)) == pytest.approx(
+        [9.0, -2.0, 2.0, 4.0]
+    )
+
+
+def test_box_hota_scores_box_overlap_and_is_nan_without_boxes():
+    """A box shifted by half its length overlaps 1/3 (IoU): matched at alpha <= 1/3 only;
+    hypotheses without a box are left out; none with a box: NaN with the reason."""
+    g = car(1, 10.0, 0.0)  # 4 x 2 along x
+    frames = [
+        EvalFrame([g], [seen(g, 5), (6, 0.0, 9.0)], boxes=[(12.0, 0.0, 0.0, 4.0, 2.0)] + [
+            (math.nan,) * 5
+        ])
+        for _ in range(4)
+    ]  # fmt: skip
+    m = evaluate(frames)
+    assert m["counts"]["box_hyp_count"] == 4
+    alphas = np.arange(0.05, 0.99, 0.05)
+    assert m["tracking"]["deta_box"] == pytest.approx(np.mean(alphas <= 1 / 3))
+    assert m["tracking"]["assa_box"] == pytest.approx(np.mean(alphas <= 1 / 3))
+    assert m["tracking"]["hota_box"] == pytest.approx(np.mean(alphas <= 1 / 3))
+    none = evaluate([EvalFrame([g], [seen(g, 5)])])
+    assert math.isnan(none["tracking"]["hota_box"]) and math.isfinite(none["tracking"]["hota"])
+    assert none["nan_reasons"]["tracking.hota_box"] == "no hypothesis with a box"
+    with pytest.raises(ValueError, match="1 boxes for 2 hypotheses"):
+        EvalFrame([g], [(5, 7.5, 0.0), (6, 1.0, 1.0)], boxes=[(1.0, 1.0, 0.0, 4.0, 2.0)])
 
 
 def test_swapped_id_counts_one_switch():

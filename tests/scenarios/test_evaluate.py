@@ -12,7 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenarios.evaluate import InputError, evaluate_drive, read_egomotion_input
+from scenarios.evaluate import (
+    TRACK_BOX_COLUMNS,
+    InputError,
+    evaluate_drive,
+    read_egomotion_input,
+)
 from scenarios.runner import gt_evaluation_set
 from sim.drive import load_groundtruth
 
@@ -71,23 +76,26 @@ def test_scoring_the_runs_own_files_gives_its_metrics(run_dir: Path, tmp_path: P
 
 def test_tracks_made_from_the_truth_score_one(run_dir: Path, tmp_path: Path):
     """The evaluation set's vehicles at their footprint centres, one track per vehicle:
-    recall, precision, MOTA and IDF1 1.0, box-centre error 0."""
+    recall, precision, MOTA, IDF1 and box HOTA 1.0, box-centre error 0."""
     drive = run_dir / "drive"
     gt = load_groundtruth(drive)
     path = tmp_path / "true_tracks.csv"
     n = 0
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["frame", "track_id", "x_m", "y_m", "box_x_m", "box_y_m"])
+        w.writerow(["frame", "track_id", "x_m", "y_m", *TRACK_BOX_COLUMNS])
         for k in range(1, len(gt)):
             for g in gt_evaluation_set(gt[k], 25.0)[0]:
-                c = g.footprint_xy.mean(axis=0)
-                w.writerow([k, g.id, *(f"{v:.6f}" for v in (c[0], c[1], c[0], c[1]))])
+                fp = g.footprint_xy
+                c, e1, e2 = fp.mean(axis=0), fp[1] - fp[0], fp[2] - fp[1]
+                box = (c[0], c[1], math.atan2(e1[1], e1[0]), *np.hypot(*np.array([e1, e2]).T))
+                w.writerow([k, g.id, *(f"{v:.6f}" for v in (c[0], c[1], *box))])
                 n += 1
     assert n >= 10  # the highway drive has a car in range
     m = evaluate_drive(drive, tmp_path / "out", tracks=path)
     assert m["track_detection"]["recall"] == 1.0 and m["track_detection"]["precision"] == 1.0
     assert m["tracking"]["mota"] == 1.0 and m["tracking"]["idf1"] == 1.0
+    assert m["tracking"]["hota_box"] == 1.0
     assert m["track_localization"]["centre_median_error_m"] < 1e-5
     assert "ego" not in m
 
@@ -174,3 +182,67 @@ def test_cli_evaluate_prints_the_figures_and_names_a_bad_file(run_dir: Path, tmp
         timeout=300,
     )
     assert fail.returncode == 2 and "b.csv, line 2: y_m=None is not a number" in fail.stderr
+
+
+def _trackeval_mot(gt_folder: Path, trackers_folder: Path, out: Path) -> dict:
+    """Stock TrackEval (Evaluator, MotChallenge2DBox, HOTA) on exported MOT files; its
+    per-sequence HOTA results of the one tracker."""
+    import trackeval
+
+    evaluator = trackeval.Evaluator(
+        {
+            "USE_PARALLEL": False,
+            "PRINT_RESULTS": False,
+            "PRINT_CONFIG": False,
+            "TIME_PROGRESS": False,
+            "OUTPUT_SUMMARY": False,
+            "OUTPUT_DETAILED": False,
+            "PLOT_CURVES": False,
+            "LOG_ON_ERROR": str(out / "trackeval_error.log"),
+        }
+    )
+    dataset = trackeval.datasets.MotChallenge2DBox(
+        {
+            "GT_FOLDER": str(gt_folder),
+            "TRACKERS_FOLDER": str(trackers_folder),
+            "OUTPUT_FOLDER": str(out),
+            "BENCHMARK": "omnibench",
+            "SPLIT_TO_EVAL": "all",
+            "SKIP_SPLIT_FOL": True,
+            "DO_PREPROC": False,
+            "PRINT_CONFIG": False,
+        }
+    )
+    res, _ = evaluator.evaluate([dataset], [trackeval.metrics.HOTA()])
+    (tracker,) = res["MotChallenge2DBox"]
+    return {
+        seq: r["pedestrian"]["HOTA"]
+        for seq, r in res["MotChallenge2DBox"][tracker].items()
+        if seq != "COMBINED_SEQ"
+    }
+
+
+def test_trackeval_on_the_mot_export_reproduces_the_box_hota(run_dir: Path, tmp_path: Path):
+    """Stock TrackEval on the exported MOT ground truth and the run's tracks gives the
+    run's tracking.hota_box (and DetA, AssA) to 1e-6; the run's tracks.mot.txt is the
+    exported tracker file; one gt row per vehicle of the evaluation set per frame."""
+    from scenarios.export import export_drive
+
+    files = export_drive(
+        run_dir / "drive", "mot", tmp_path, progress=False, tracks=run_dir / "tracks.csv"
+    )
+    seq = "highway-omni-near"
+    tracker_file = tmp_path / "trackers" / "tracker" / "data" / f"{seq}.txt"
+    assert tracker_file in files
+    assert tracker_file.read_text() == (run_dir / "tracks.mot.txt").read_text()
+    ran = json.loads((run_dir / "metrics.json").read_text())
+    gt_rows = (tmp_path / "mot" / seq / "gt" / "gt.txt").read_text().splitlines()
+    assert len(gt_rows) == ran["track_detection"]["gt_count"] > 0
+    assert min(int(r.split(",")[0]) for r in gt_rows) >= 1
+    ini = (tmp_path / "mot" / seq / "seqinfo.ini").read_text()
+    assert f"seqLength={FRAMES - 1}" in ini
+    hota = _trackeval_mot(tmp_path / "mot", tmp_path / "trackers", tmp_path / "te")[seq]
+    t = ran["tracking"]
+    assert 0.0 < t["hota_box"] < 1.0  # boxes that overlap, not perfectly
+    for ours, theirs in (("hota_box", "HOTA"), ("deta_box", "DetA"), ("assa_box", "AssA")):
+        assert abs(float(np.mean(hota[theirs])) - t[ours]) <= 1e-6, (ours, hota[theirs], t[ours])

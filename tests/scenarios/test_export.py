@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -126,3 +127,86 @@ def test_depth_tum_and_bad_requests(drive, tmp_path):
         export_drive(drive, "kitti", tmp_path)
     with pytest.raises(ExportError, match="not a complete rendered drive"):
         export_drive(tmp_path, "tum", tmp_path / "x")
+
+
+def _kitti2dbox_hota(gt_folder: Path, trackers_folder: Path, out: Path) -> dict:
+    """Stock TrackEval (Evaluator, Kitti2DBox, HOTA, class car) on KITTI tracking files;
+    the one tracker's per-sequence HOTA results."""
+    import trackeval
+
+    evaluator = trackeval.Evaluator(
+        {"USE_PARALLEL": False, "PRINT_RESULTS": False, "PRINT_CONFIG": False,
+         "TIME_PROGRESS": False, "OUTPUT_SUMMARY": False, "OUTPUT_DETAILED": False,
+         "PLOT_CURVES": False, "LOG_ON_ERROR": str(out / "trackeval_error.log")}
+    )  # fmt: skip
+    dataset = trackeval.datasets.Kitti2DBox(
+        {"GT_FOLDER": str(gt_folder), "TRACKERS_FOLDER": str(trackers_folder),
+         "OUTPUT_FOLDER": str(out), "CLASSES_TO_EVAL": ["car"], "PRINT_CONFIG": False}
+    )  # fmt: skip
+    res, _ = evaluator.evaluate([dataset], [trackeval.metrics.HOTA()])
+    (tracker,) = res["Kitti2DBox"]
+    return {s: r["car"]["HOTA"] for s, r in res["Kitti2DBox"][tracker].items()}
+
+
+def test_kitti_tracking_rows_are_the_coco_boxes_and_the_true_poses(drive, tmp_path):
+    """Each label row: the COCO export's box (right - left = w), the vehicle's size, and
+    its footprint centre and heading in the KITTI camera axes; TrackEval's Kitti2DBox reads
+    the files (the labels as a tracker: HOTA 1)."""
+    import shutil
+
+    from scenarios.runner import vehicle_footprint
+
+    files = export_drive(drive, "kitti-tracking", tmp_path, progress=False)
+    label = tmp_path / "kitti" / "label_02" / "highway-omni-near.txt"
+    assert label in files
+    (coco_path,) = export_drive(drive, "coco", tmp_path, progress=False)
+    coco = json.loads(coco_path.read_text())
+    boxes = {(a["image_id"], a["track_id"]): a["bbox"] for a in coco["annotations"]}
+    gt = load_groundtruth(drive)
+    rows = [r.split() for r in label.read_text().splitlines()]
+    assert len(rows) == len(boxes) >= FRAMES
+    for r in rows:
+        k, vid = int(r[0]), int(r[1])
+        assert r[2:5] == ["Car", "0", "0"]
+        left, top, right, bottom = map(float, r[6:10])
+        assert [left, top, right - left, bottom - top] == boxes[(k, vid)]
+        v = next(v for v in gt[k]["vehicles"] if v["id"] == vid)
+        h, w, length, x, y, z, ry = map(float, r[10:17])
+        assert (h, w, length) == pytest.approx(
+            (v["height_m"], v["width_m"], v["length_m"]), abs=1e-6
+        )
+        c = vehicle_footprint(gt[k], v).mean(axis=0)
+        assert (x, y, z) == pytest.approx((-c[1], 0.0, c[0]), abs=1e-6)
+        # KITTI's heading (cos ry, -sin ry) in (x, z) is the vehicle's in the road frame
+        yaw = v["yaw_rad"] - gt[k]["ego"]["yaw_rad"]
+        assert (math.cos(ry), -math.sin(ry)) == pytest.approx(
+            (-math.sin(yaw), math.cos(yaw)), abs=1e-5
+        )
+        assert float(r[5]) == pytest.approx(
+            math.remainder(ry - math.atan2(x, z), 2 * math.pi), abs=1e-5
+        )
+    tracker = tmp_path / "trackers" / "labels" / "data"
+    tracker.mkdir(parents=True)
+    shutil.copy(label, tracker / label.name)
+    hota = _kitti2dbox_hota(tmp_path / "kitti", tmp_path / "trackers", tmp_path / "te")
+    assert float(np.mean(hota["highway-omni-near"]["HOTA"])) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_mot_export_needs_boxes_and_the_mot_format(drive, tmp_path):
+    tracks = tmp_path / "points.csv"
+    tracks.write_text("frame,track_id,x_m,y_m\n1,3,8.0,0.0\n")
+    with pytest.raises(ExportError, match=r"points.csv: no track with a box"):
+        export_drive(drive, "mot", tmp_path / "o", progress=False, tracks=tracks)
+    with pytest.raises(ExportError, match="exported with --format mot, not 'coco'"):
+        export_drive(drive, "coco", tmp_path / "o", progress=False, tracks=tracks)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,track_id,x_m,y_m\n1,3,8.0\n")
+    with pytest.raises(ExportError, match=r"bad.csv, line 2: y_m=None is not a number"):
+        export_drive(drive, "mot", tmp_path / "o", progress=False, tracks=bad)
+    assert not (tmp_path / "o").exists()
+    files = export_drive(drive, "mot", tmp_path / "g", progress=False)
+    assert [p.relative_to(tmp_path / "g").as_posix() for p in files] == [
+        "mot/highway-omni-near/gt/gt.txt",
+        "mot/highway-omni-near/seqinfo.ini",
+        "mot/seqmaps/omnibench-all.txt",
+    ]
