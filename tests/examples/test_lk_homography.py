@@ -4,27 +4,16 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sqlite3
-import subprocess
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.examples.example_run import run_example
+
 PLUGIN = "lk_homography:LKHomographyEstimator"
 
 
 def test_example_plugin_runs_through_run_evaluate_and_a_suite(tmp_path: Path):
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
-    script = ROOT / "examples" / "lk_homography" / "run_example.py"
-    proc = subprocess.run(
-        [sys.executable, str(script), "--out", str(tmp_path), "--frames", "12"],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env=env,
-    )
+    proc = run_example("lk_homography", tmp_path, 12, 900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     ran = json.loads((tmp_path / "run" / "metrics.json").read_text())
     scored = json.loads((tmp_path / "evaluated" / "metrics.json").read_text())

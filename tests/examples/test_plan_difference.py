@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.examples.example_run import run_example
+
 PLUGIN = "plan_difference:PlanDifferenceDetector"
 
 
@@ -17,16 +15,7 @@ def test_example_detector_runs_through_run_and_evaluate(tmp_path: Path):
     """Its tracks are scored by the run and again by evaluate to the same figures; it finds
     the car ahead in a third of the frames on this drive;
     points only: no MOT file."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
-    script = ROOT / "examples" / "plan_difference" / "run_example.py"
-    proc = subprocess.run(
-        [sys.executable, str(script), "--out", str(tmp_path), "--frames", "12"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env=env,
-    )
+    proc = run_example("plan_difference", tmp_path, 12, 300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     ran = json.loads((tmp_path / "run" / "metrics.json").read_text())
     scored = json.loads((tmp_path / "evaluated" / "metrics.json").read_text())
