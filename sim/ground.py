@@ -15,10 +15,16 @@ the pixel's own footprint there:
   textures (asphalt, grass) are read wider, as wide as the probes' spacing, so that
   their fine grain does not alias; the coverage (where markings and the road's edge
   are: a few hard edges, not a grain) is always read at the minor axis, so that a
-  marking keeps its sharp edges across the line of sight (docs/DESIGN.md).
+  marking keeps its sharp edges across the line of sight (docs/DESIGN.md). Where the
+  coverage changes from a probe to its neighbour, an edge lies in the probe's cell
+  (halfway to each neighbour) and the probe takes the coverage's mean over the cell
+  (`COVER_SUBSAMPLES` samples along it): a dash's end moves smoothly through the
+  footprint instead of jumping from probe to probe.
 - Textures (asphalt, grass) are periodic tiles in world metres (`MipTexture`). Where
   the road and its markings are is a world raster of coverage (`CoverageMap`): a fine
-  window of tiles around the camera and a coarse map of the whole area, with mips.
+  window of tiles around the camera and a coarse map of the whole area, with mips; a
+  pixel reads the fine window wherever its footprint's minor axis is within the
+  window's coarsest level (the coarse map's 20-cm cells would blur a marking there).
 
 Everything is a function of the world point and the pixel's footprint, never of a grid
 fixed to the camera, so the road moves in the images exactly as the plane-induced
@@ -39,6 +45,8 @@ from estimator.camera.models import CameraModel
 
 PIXEL_SIGMA_PX = 0.5  # [px] std of a camera pixel's Gaussian response, 0.3..1
 MAX_PROBES = 8  # [-] most probes along a footprint's major axis, 1..32
+COVER_SUBSAMPLES = 8  # [-] coverage samples across a probe's cell where an edge lies in it, 1..32
+COVER_EDGE = 1e-3  # [-] coverage change to a neighbour probe that marks an edge, 0..0.1
 OUTSIDE_VIEW_PROBES = 2  # [-] most probes of pixels outside the valid view (shown only), 1..8
 FINE_CELL_M = 0.025  # [m] cell of the fine coverage raster, 0.01..0.05
 FINE_LEVELS = 4  # [-] mip levels of the fine raster (2.5, 5, 10, 20 cm), 1..6
@@ -328,7 +336,7 @@ class GroundRenderer:
         foot = _footprints(camera, w, R, o, cap)
         # pixels whose probes all read the fine coverage window come first
         top_fine = FINE_CELL_M * 2.0 ** (FINE_LEVELS - 1)
-        fine = (foot.far_m < 0.8 * coverage.reach_m) & (2.0 * foot.blur_m <= top_fine)
+        fine = (foot.far_m < 0.8 * coverage.reach_m) & (2.0 * foot.minor_m <= top_fine)
         order = np.argsort(~fine, kind="stable")
         self.pixel = idx[order]  # (N,) flat pixel index
         self.n_fine_pixels = int(fine.sum())
@@ -451,6 +459,51 @@ def _trilinear_into(args, level, frac, x, y, weight, out):
         _bilinear_into(args[0], u, v, weight * frac, out)
 
 
+@njit(cache=True, inline="always")
+def _bilinear2(atlas, x, y):
+    """Bilinear sample (2 channels) of atlas (R, C, >=2) at centre-index coordinates
+    (x, y) [cells]; zero where a neighbour is outside."""
+    x0f, y0f = np.floor(x), np.floor(y)
+    fx, fy = x - x0f, y - y0f
+    x0, y0 = int(x0f), int(y0f)
+    if x0 < 0 or y0 < 0 or x0 + 1 >= atlas.shape[1] or y0 + 1 >= atlas.shape[0]:
+        return 0.0, 0.0
+    w00, w01 = (1.0 - fx) * (1.0 - fy), fx * (1.0 - fy)
+    w10, w11 = (1.0 - fx) * fy, fx * fy
+    c0 = w00 * atlas[y0, x0, 0] + w01 * atlas[y0, x0 + 1, 0]
+    c0 += w10 * atlas[y0 + 1, x0, 0] + w11 * atlas[y0 + 1, x0 + 1, 0]
+    c1 = w00 * atlas[y0, x0, 1] + w01 * atlas[y0, x0 + 1, 1]
+    c1 += w10 * atlas[y0 + 1, x0, 1] + w11 * atlas[y0 + 1, x0 + 1, 1]
+    return c0, c1
+
+
+@njit(cache=True, inline="always")
+def _cover_at(args, level, frac, x, y):
+    """The coverage (road, marking) 0..1 of a coverage `MipAtlas` (`_atlas_args`) at the
+    plane point (x, y) [m] relative to the camera, trilinear."""
+    u, v = _coords(args, level, x, y)
+    r, m = _bilinear2(args[0], u, v)
+    if frac > 0.0:
+        u, v = _coords(args, level + 1, x, y)
+        r1, m1 = _bilinear2(args[0], u, v)
+        r += frac * (r1 - r)
+        m += frac * (m1 - m)
+    return r / 255.0, m / 255.0
+
+
+@njit(cache=True, inline="always")
+def _plane_point(rays, p, R, o, max_range):
+    """Where probe p's ray (camera frame) seen from pose (R, o) meets the plane: (hit,
+    x, y) [m] relative to the camera."""
+    dx = R[0, 0] * rays[p, 0] + R[0, 1] * rays[p, 1] + R[0, 2] * rays[p, 2]
+    dy = R[1, 0] * rays[p, 0] + R[1, 1] * rays[p, 1] + R[1, 2] * rays[p, 2]
+    dz = R[2, 0] * rays[p, 0] + R[2, 1] * rays[p, 1] + R[2, 2] * rays[p, 2]
+    if dz >= 0.0 or -o[2] >= max_range * -dz:
+        return False, 0.0, 0.0
+    t = -o[2] / dz
+    return True, t * dx, t * dy
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def _shade(
     rays, weight, starts, n_fine, R, o, asphalt, la, fa, grass, lg, fg, fine, coarse, lc, fc,
@@ -463,35 +516,56 @@ def _shade(
     trilinear; the part of the footprint off the plane is sky (linear, (3,))."""
     for i in prange(len(starts) - 1):
         acc = np.zeros(3)
-        cov = np.zeros(2)
         tex = np.zeros(3)
         cover = 0.0
-        for p in range(starts[i], starts[i + 1]):
-            dx = R[0, 0] * rays[p, 0] + R[0, 1] * rays[p, 1] + R[0, 2] * rays[p, 2]
-            dy = R[1, 0] * rays[p, 0] + R[1, 1] * rays[p, 1] + R[1, 2] * rays[p, 2]
-            dz = R[2, 0] * rays[p, 0] + R[2, 1] * rays[p, 1] + R[2, 2] * rays[p, 2]
-            if dz >= 0.0 or -o[2] >= max_range * -dz:
-                continue
-            t = -o[2] / dz
-            x, y = t * dx, t * dy
-            cov[0] = 0.0
-            cov[1] = 0.0
-            if i < n_fine:
-                _trilinear_into(fine, lc[p], fc[p], x, y, 1.0 / 255.0, cov)
-            else:
-                _trilinear_into(coarse, lc[p], fc[p], x, y, 1.0 / 255.0, cov)
-            road, mark = cov[0], cov[1]
-            tex[0] = 0.0
-            tex[1] = 0.0
-            tex[2] = 0.0
-            if road > 0.0:
-                _trilinear_into(asphalt, la[p], fa[p], x, y, road * k_road, tex)
-            if road < 1.0:
-                _trilinear_into(grass, lg[p], fg[p], x, y, (1.0 - road) * k_grass, tex)
-            w = weight[p]
-            for c in range(3):
-                acc[c] += w * (tex[c] + mark * (paint[c] - tex[c]))
-            cover += w
+        cm = fine if i < n_fine else coarse
+        s0, n = starts[i], starts[i + 1] - starts[i]
+        # a window of three probes along the major axis: the one before, this, the next
+        hit_b, x_b, y_b, r_b, m_b = False, 0.0, 0.0, 0.0, 0.0
+        hit, x, y = _plane_point(rays, s0, R, o, max_range)
+        r, m = _cover_at(cm, lc[s0], fc[s0], x, y) if hit else (0.0, 0.0)
+        for q in range(n):
+            p = s0 + q
+            hit_n, x_n, y_n, r_n, m_n = False, 0.0, 0.0, 0.0, 0.0
+            if q + 1 < n:
+                hit_n, x_n, y_n = _plane_point(rays, p + 1, R, o, max_range)
+                if hit_n:
+                    r_n, m_n = _cover_at(cm, lc[p + 1], fc[p + 1], x_n, y_n)
+            if hit:
+                road, mark = r, m
+                # an edge of the coverage within the probe's cell: its mean over the cell,
+                # which reaches halfway to each neighbour (a lone end mirrors the other)
+                edge = (hit_b and abs(r_b - r) + abs(m_b - m) > COVER_EDGE) or (
+                    hit_n and abs(r_n - r) + abs(m_n - m) > COVER_EDGE
+                )
+                if edge:
+                    ax, ay = (0.5 * (x_b - x), 0.5 * (y_b - y)) if hit_b else (0.0, 0.0)
+                    bx, by = (0.5 * (x_n - x), 0.5 * (y_n - y)) if hit_n else (-ax, -ay)
+                    if not hit_b:
+                        ax, ay = -bx, -by
+                    road, mark = 0.0, 0.0
+                    for k in range(COVER_SUBSAMPLES):
+                        f = (k + 0.5) / COVER_SUBSAMPLES
+                        rs, ms = _cover_at(
+                            cm, lc[p], fc[p], x + ax + f * (bx - ax), y + ay + f * (by - ay)
+                        )
+                        road += rs
+                        mark += ms
+                    road /= COVER_SUBSAMPLES
+                    mark /= COVER_SUBSAMPLES
+                tex[0] = 0.0
+                tex[1] = 0.0
+                tex[2] = 0.0
+                if road > 0.0:
+                    _trilinear_into(asphalt, la[p], fa[p], x, y, road * k_road, tex)
+                if road < 1.0:
+                    _trilinear_into(grass, lg[p], fg[p], x, y, (1.0 - road) * k_grass, tex)
+                w = weight[p]
+                for c in range(3):
+                    acc[c] += w * (tex[c] + mark * (paint[c] - tex[c]))
+                cover += w
+            hit_b, x_b, y_b, r_b, m_b = hit, x, y, r, m
+            hit, x, y, r, m = hit_n, x_n, y_n, r_n, m_n
         miss = 1.0 - cover
         k = pixel[i]
         for c in range(3):

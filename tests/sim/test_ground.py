@@ -88,3 +88,35 @@ def test_a_moved_window_of_the_same_world_takes_over_the_built_tiles():
     assert np.array_equal(moved.fine.atlas, fresh.fine.atlas)
     assert moved.fine.atlas[..., 1].any()  # the marking is in the window
     assert len(built) == 49 and len(moved._tiles) == 49 + 7  # one tile column built anew
+
+
+def test_a_marking_edge_moves_smoothly_with_the_world():
+    """A painted edge across the road 12-16 m ahead, where each footprint is several
+    probes long: as the camera moves forward in 1-cm steps the edge's light in the image
+    grows in proportion (the coverage's mean over each probe's cell), not in steps from
+    probe to probe."""
+    cam, mount = resolve_camera({"preset": "omni-near", "width": 320, "height": 320})
+    big = np.array([[-1e3, -1e3], [1e3, -1e3], [1e3, 1e3], [-1e3, 1e3]])
+    paint = np.array([[14.0, -3.0], [1e3, -3.0], [1e3, 3.0], [14.0, 3.0]])  # x >= 14 m
+    flat = MipTexture(np.full((8, 8, 3), 0.1, np.float32), 4.0)
+    look = GroundLook(flat, flat, np.ones(3), k_road=1.0, k_grass=1.0, k_marking=1.0)
+    T = make_T(mount.R_car_cam, mount.position_m)
+    ground = GroundRenderer(cam, T, look, CoverageMap([big], [paint], (-60, 60, -60, 60)), SKY)
+    rays = cam.pixel_rays() @ T[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = T[0, 3] - T[2, 3] / rays[..., 2] * rays[..., 0]  # road x of each pixel [m]
+        y = T[1, 3] - T[2, 3] / rays[..., 2] * rays[..., 1]
+    near_edge = (rays[..., 2] < 0) & (np.abs(x - 14.0) < 1.5) & (np.abs(y) < 1.0)
+    assert near_edge.sum() > 20
+    light = []
+    steps = np.arange(0.0, 0.2, 0.01)  # [m]
+    for d in steps:
+        Td = T.copy()
+        Td[0, 3] += d
+        rgb = ground.render(Td).rgb[..., 1]
+        light.append(np.sum((rgb[near_edge] / 255.0) ** DISPLAY_GAMMA))
+    light = np.asarray(light)
+    fit = np.polyval(np.polyfit(steps, light, 2), steps)
+    per_step = np.abs(np.diff(fit)).mean()
+    assert per_step > 0.01  # the edge moved through the pixels
+    assert np.abs(light - fit).max() < 0.1 * per_step  # smooth: no jumps between probes
