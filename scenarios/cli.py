@@ -137,8 +137,8 @@ def bench_fidelity_cmd(
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
     """Motion fidelity of the renderers, without an estimator: road patches of consecutive
-    frames against the exact plane-induced motion (scenarios/motion_fidelity.py); "exact"
-    is the measurement's own floor, on exact images of a synthetic road."""
+    frames against the exact plane-induced motion (scenarios/motion_fidelity.py). The row
+    named exact is the measurement's own floor, on exact images of a synthetic road."""
     from scenarios.motion_fidelity import bench_fidelity
 
     res = bench_fidelity(out, camera=camera, frames=frames, seed=seed)
