@@ -73,13 +73,15 @@ def register_shift(patch_a: np.ndarray, region_b: np.ndarray) -> np.ndarray:
     """(2,) shift e [px] (x, y) with b(x + e) = patch_a(x), for patch_a (P, P) and region_b
     (P + 2m, P + 2m) float32, b's pixels around the patch with a margin of m =
     WARP_REACH_PX (b resampled reads true pixels, not a border rule): Gauss-Newton on the
-    Hanning-windowed squared difference; NaN where the texture cannot fix both axes or
-    the shift leaves the margin."""
+    Hanning-windowed squared difference; NaN where patch_a is too plain (RMS gradient below
+    MIN_TEXTURE_DN), its texture cannot fix both axes or the shift leaves the margin."""
     P, m = patch_a.shape[0], WARP_REACH_PX
     if region_b.shape != (P + 2 * m, P + 2 * m):
         raise ValueError(f"region_b is {region_b.shape}, expected {(P + 2 * m,) * 2}")
     win = np.outer(np.hanning(P), np.hanning(P)).ravel()
     gy, gx = np.gradient(patch_a.astype(np.float64))
+    if np.sqrt(np.mean(gx**2 + gy**2)) < MIN_TEXTURE_DN:
+        return np.full(2, np.nan)
     J = np.stack([gx.ravel(), gy.ravel()], axis=1)  # (P*P, 2)
     Jw = J * win[:, None]
     A = Jw.T @ J
@@ -145,9 +147,6 @@ def pair_errors(
                 continue
             pa = a[r : r + patch_px, c : c + patch_px]
             pb = warped[r - mg : r + patch_px + mg, c - mg : c + patch_px + mg]
-            gy, gx = np.gradient(pa)
-            if np.sqrt(np.mean(gx**2 + gy**2)) < MIN_TEXTURE_DN:
-                continue
             # warped(x) = a(x - e) for a render error e: registration finds warped(x + e) = a(x)
             dx, dy = register_shift(pa, pb)
             if not np.isfinite(dx + dy):
