@@ -271,9 +271,7 @@ class PlaneFrameRenderer:
                 if not np.any(face & self.camera.valid_mask()):
                     body |= face
             self.body = body & self.imaged
-            self.body_images = FrameImages(
-                seen.image[self.body], seen.ids[self.body], seen.range_m[self.body]
-            )
+            self.body_images = seen  # read where self.body is set
         pixels = self.imaged & ~self.body
         self._objects = OmniRenderer(
             self.camera, self.face_px, pixels=pixels, windowed=True, cache_body_faces=False
@@ -289,9 +287,10 @@ class PlaneFrameRenderer:
             self.start(vehicles, T_world_cam)
         out = self._render_with(self._objects, vehicles, T_world_cam, plane=self._ground)
         if self.cache_body:
-            out.image[self.body] = self.body_images.image
-            out.ids[self.body] = self.body_images.ids
-            out.range_m[self.body] = self.body_images.range_m
+            body, kept = self.body.view(np.uint8), self.body_images
+            cv2.copyTo(kept.image, body, out.image)
+            cv2.copyTo(kept.ids, body, out.ids)
+            cv2.copyTo(kept.range_m, body, out.range_m)
         return out
 
     def _render_with(self, r: OmniRenderer, vehicles, T_world_cam, plane) -> FrameImages:

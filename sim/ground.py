@@ -58,6 +58,11 @@ MAX_RANGE_M = 400.0  # [m] ground farther along the ray is not drawn (sky)
 DISPLAY_GAMMA = 2.2  # [-] pixel value = 255 * linear radiance ** (1 / gamma), as pyrender
 
 
+# the kernel's floating-point licences: fused multiply-adds, reciprocals, reassociation and
+# fast pow (rounding-level changes only; no assumption that values are finite)
+_FAST = {"contract", "arcp", "afn", "reassoc"}
+
+
 def srgb_to_linear(image: np.ndarray) -> np.ndarray:
     """float32 linear values [0, 1] of sRGB-encoded uint8 values (IEC 61966-2-1)."""
     c = np.asarray(image, np.float32) / np.float32(255.0)
@@ -412,10 +417,11 @@ def _atlas_args(a: MipAtlas, o: np.ndarray) -> tuple:
     off = o[:2] - a.origin_xy
     if a.period[0] > 0:
         off = np.mod(off, a.period[0] * a.cell_m)
-    return (a.atlas, a.per_m, a.period, a.col, a.row0, float(off[0]), float(off[1]))
+    inv_period = np.divide(1.0, a.period, out=np.zeros_like(a.period), where=a.period > 0)
+    return (a.atlas, a.per_m, a.period, a.col, a.row0, float(off[0]), float(off[1]), inv_period)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=_FAST)
 def _coords(args, level, x, y):
     """Atlas coordinates [cells] at a mip level of the plane point (x, y) [m], given
     relative to the camera."""
@@ -423,43 +429,48 @@ def _coords(args, level, x, y):
     u = (x + args[5]) * per - 0.5
     v = (y + args[6]) * per - 0.5
     if period > 0.0:
-        inv = 1.0 / period
+        inv = args[7][level]
         u -= np.floor(u * inv) * period
         v -= np.floor(v * inv) * period
     return u + args[3][level], v + args[4]
 
 
-@njit(cache=True, inline="always")
-def _bilinear_into(atlas, x, y, weight, out):
-    """out[:K] += weight * bilinear sample of atlas (R, C, K) at centre-index coordinates
-    (x, y) [cells]; nothing where a neighbour is outside."""
+@njit(cache=True, inline="always", fastmath=_FAST)
+def _bilinear3(atlas, x, y):
+    """Bilinear sample (3 channels) of atlas (R, C, 3) at centre-index coordinates
+    (x, y) [cells]; zero where a neighbour is outside."""
     x0f, y0f = np.floor(x), np.floor(y)
     fx, fy = x - x0f, y - y0f
     x0, y0 = int(x0f), int(y0f)
     if x0 < 0 or y0 < 0 or x0 + 1 >= atlas.shape[1] or y0 + 1 >= atlas.shape[0]:
-        return
-    w00, w01 = weight * (1.0 - fx) * (1.0 - fy), weight * fx * (1.0 - fy)
-    w10, w11 = weight * (1.0 - fx) * fy, weight * fx * fy
-    for c in range(atlas.shape[2]):
-        out[c] += (
-            w00 * atlas[y0, x0, c]
-            + w01 * atlas[y0, x0 + 1, c]
-            + w10 * atlas[y0 + 1, x0, c]
-            + w11 * atlas[y0 + 1, x0 + 1, c]
-        )
+        return 0.0, 0.0, 0.0
+    w00, w01 = (1.0 - fx) * (1.0 - fy), fx * (1.0 - fy)
+    w10, w11 = (1.0 - fx) * fy, fx * fy
+    a, b = atlas[y0, x0], atlas[y0, x0 + 1]
+    c, d = atlas[y0 + 1, x0], atlas[y0 + 1, x0 + 1]
+    return (
+        w00 * a[0] + w01 * b[0] + w10 * c[0] + w11 * d[0],
+        w00 * a[1] + w01 * b[1] + w10 * c[1] + w11 * d[1],
+        w00 * a[2] + w01 * b[2] + w10 * c[2] + w11 * d[2],
+    )
 
 
-@njit(cache=True, inline="always")
-def _trilinear_into(args, level, frac, x, y, weight, out):
-    """out[:K] += weight * trilinear sample of a `MipAtlas` (`_atlas_args`)."""
+@njit(cache=True, inline="always", fastmath=_FAST)
+def _trilinear3(args, level, frac, x, y):
+    """Trilinear sample (3 channels) of a `MipAtlas` (`_atlas_args`) at the plane point
+    (x, y) [m] relative to the camera."""
     u, v = _coords(args, level, x, y)
-    _bilinear_into(args[0], u, v, weight * (1.0 - frac), out)
+    r, g, b = _bilinear3(args[0], u, v)
     if frac > 0.0:
         u, v = _coords(args, level + 1, x, y)
-        _bilinear_into(args[0], u, v, weight * frac, out)
+        r1, g1, b1 = _bilinear3(args[0], u, v)
+        r += frac * (r1 - r)
+        g += frac * (g1 - g)
+        b += frac * (b1 - b)
+    return r, g, b
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=_FAST)
 def _bilinear2(atlas, x, y):
     """Bilinear sample (2 channels) of atlas (R, C, >=2) at centre-index coordinates
     (x, y) [cells]; zero where a neighbour is outside."""
@@ -477,7 +488,7 @@ def _bilinear2(atlas, x, y):
     return c0, c1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=_FAST)
 def _cover_at(args, level, frac, x, y):
     """The coverage (road, marking) 0..1 of a coverage `MipAtlas` (`_atlas_args`) at the
     plane point (x, y) [m] relative to the camera, trilinear."""
@@ -491,7 +502,7 @@ def _cover_at(args, level, frac, x, y):
     return r / 255.0, m / 255.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=_FAST)
 def _plane_point(rays, p, R, o, max_range):
     """Where probe p's ray (camera frame) seen from pose (R, o) meets the plane: (hit,
     x, y) [m] relative to the camera."""
@@ -504,7 +515,7 @@ def _plane_point(rays, p, R, o, max_range):
     return True, t * dx, t * dy
 
 
-@njit(parallel=True, cache=True, nogil=True)
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _shade(
     rays, weight, starts, n_fine, R, o, asphalt, la, fa, grass, lg, fg, fine, coarse, lc, fc,
     k_road, k_grass, paint, sky, inv_gamma, max_range, pixel, centre, out_rgb, out_range,
@@ -515,8 +526,7 @@ def _shade(
     fine window for the first n_fine pixels, else the coarse map) and the textures, each
     trilinear; the part of the footprint off the plane is sky (linear, (3,))."""
     for i in prange(len(starts) - 1):
-        acc = np.zeros(3)
-        tex = np.zeros(3)
+        acc0, acc1, acc2 = 0.0, 0.0, 0.0
         cover = 0.0
         cm = fine if i < n_fine else coarse
         s0, n = starts[i], starts[i + 1] - starts[i]
@@ -553,23 +563,27 @@ def _shade(
                         mark += ms
                     road /= COVER_SUBSAMPLES
                     mark /= COVER_SUBSAMPLES
-                tex[0] = 0.0
-                tex[1] = 0.0
-                tex[2] = 0.0
+                t0, t1, t2 = 0.0, 0.0, 0.0
                 if road > 0.0:
-                    _trilinear_into(asphalt, la[p], fa[p], x, y, road * k_road, tex)
+                    a0, a1, a2 = _trilinear3(asphalt, la[p], fa[p], x, y)
+                    ka = road * k_road
+                    t0, t1, t2 = ka * a0, ka * a1, ka * a2
                 if road < 1.0:
-                    _trilinear_into(grass, lg[p], fg[p], x, y, (1.0 - road) * k_grass, tex)
+                    g0, g1, g2 = _trilinear3(grass, lg[p], fg[p], x, y)
+                    kg = (1.0 - road) * k_grass
+                    t0, t1, t2 = t0 + kg * g0, t1 + kg * g1, t2 + kg * g2
                 w = weight[p]
-                for c in range(3):
-                    acc[c] += w * (tex[c] + mark * (paint[c] - tex[c]))
+                acc0 += w * (t0 + mark * (paint[0] - t0))
+                acc1 += w * (t1 + mark * (paint[1] - t1))
+                acc2 += w * (t2 + mark * (paint[2] - t2))
                 cover += w
             hit_b, x_b, y_b, r_b, m_b = hit, x, y, r, m
             hit, x, y, r, m = hit_n, x_n, y_n, r_n, m_n
         miss = 1.0 - cover
         k = pixel[i]
-        for c in range(3):
-            out_rgb[k, c] = 255.0 * max(acc[c] + miss * sky[c], 0.0) ** inv_gamma
+        out_rgb[k, 0] = 255.0 * max(acc0 + miss * sky[0], 0.0) ** inv_gamma
+        out_rgb[k, 1] = 255.0 * max(acc1 + miss * sky[1], 0.0) ** inv_gamma
+        out_rgb[k, 2] = 255.0 * max(acc2 + miss * sky[2], 0.0) ** inv_gamma
         dz = R[2, 0] * centre[i, 0] + R[2, 1] * centre[i, 1] + R[2, 2] * centre[i, 2]
         if dz < 0.0 and -o[2] < max_range * -dz:
             out_range[k] = -o[2] / dz

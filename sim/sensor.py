@@ -61,25 +61,26 @@ def motion_blur(image: np.ndarray, displacements_px: Sequence[np.ndarray]) -> np
     """
     if not len(displacements_px):
         return image
-    u, v = _pixel_grid(*image.shape[:2])
+    grid = _pixel_grid(*image.shape[:2])
     out = np.zeros(image.shape, np.float32)
     for d in displacements_px:
         d = np.asarray(d, np.float32)
         if not d.any():  # the sample at the frame's time
             out += image
             continue
-        d = cv2.remap(d, u - d[..., 0], v - d[..., 1], cv2.INTER_LINEAR, borderMode=_BORDER)
-        out += cv2.remap(image, u - d[..., 0], v - d[..., 1], cv2.INTER_LINEAR, borderMode=_BORDER)
+        d = cv2.remap(d, grid - d, None, cv2.INTER_LINEAR, borderMode=_BORDER)
+        out += cv2.remap(image, grid - d, None, cv2.INTER_LINEAR, borderMode=_BORDER)
     out *= np.float32(1.0 / len(displacements_px))
     return out
 
 
 @lru_cache(maxsize=4)
-def _pixel_grid(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) float32 column and row of every pixel (read only)."""
+def _pixel_grid(H: int, W: int) -> np.ndarray:
+    """(H, W, 2) float32 column and row of every pixel (read only)."""
     v, u = np.mgrid[0:H, 0:W].astype(np.float32)
-    u.flags.writeable = v.flags.writeable = False
-    return u, v
+    grid = np.stack([u, v], axis=2)
+    grid.flags.writeable = False
+    return grid
 
 
 def gaussian_noise(shape: tuple, std: float, seed: int) -> np.ndarray:
@@ -107,23 +108,23 @@ def apply_sensor(
     """
     img = image.astype(np.float32)
     if vignette is not None and model.vignetting > 0:
-        img *= (np.float32(gain) * np.asarray(vignette, np.float32))[..., None]
+        scale = np.float32(gain) * np.asarray(vignette, np.float32)
+        img = cv2.multiply(img, cv2.merge([scale, scale, scale]))
     elif gain != 1.0:
         img *= np.float32(gain)
     if model.motion_blur and blur_px is not None:
         img = motion_blur(img, blur_px)
+    noise = 0.0
     if model.noise_std > 0:
-        img += gaussian_noise(img.shape, model.noise_std, int(rng.integers(0, 2**31 - 1)))
-    np.rint(img, out=img)
-    np.clip(img, 0, 255, out=img)
-    out = img.astype(np.uint8)
+        noise = gaussian_noise(img.shape, model.noise_std, int(rng.integers(0, 2**31 - 1)))
+    # the sum rounded to the nearest integer and saturated to 0..255, in one pass
+    out = cv2.add(img, noise, dtype=cv2.CV_8U)
     if mask is not None:
-        out *= mask.astype(np.uint8)[..., None]
+        out = cv2.bitwise_and(out, out, mask=np.asarray(mask, np.uint8))
     if model.jpeg_quality is not None:
-        ok, buf = cv2.imencode(
-            ".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, model.jpeg_quality]
-        )
+        bgr = cv2.cvtColor(out, cv2.COLOR_RGB2BGR)
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, model.jpeg_quality])
         if not ok:
             raise RuntimeError("JPEG encoding failed")
-        out = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
+        out = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     return out
