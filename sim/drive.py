@@ -122,10 +122,13 @@ def scene_flow_px(
     b: CameraPose,
     displacement_m: dict[int, np.ndarray],
     step: int = 4,
+    full_size: bool = True,
 ) -> np.ndarray:
     """(H, W, 2) image motion between poses a and b [px], for motion blur.
 
-    Computed on every ``step``-th pixel and interpolated (the flow is smooth).
+    Computed on every ``step``-th pixel and interpolated (the flow is smooth); with
+    full_size False, the (ceil(H / step), ceil(W / step), 2) samples themselves, as
+    `sim.sensor.motion_blur` reads them.
     rays: (H, W, 3) unit rays of the actual camera; range_m: (H, W), inf for sky;
     ids: (H, W) vehicle ids (-1 none, 0 the ego car, which moves with the camera);
     displacement_m: world displacement (3,) of each vehicle id between a and b
@@ -151,7 +154,8 @@ def scene_flow_px(
     flow = camera.project(P_b) - w_a
     flow[i == 0] = 0.0  # the ego car's body moves with the camera
     flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0).reshape(h, w, 2)
-    return cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    flow = flow.astype(np.float32)
+    return cv2.resize(flow, (W, H), interpolation=cv2.INTER_LINEAR) if full_size else flow
 
 
 def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndarray]:
@@ -317,7 +321,13 @@ class DriveRenderer:
             taus = exposure_times(self.sensor.exposure_s)
             ends = {
                 tau: scene_flow_px(
-                    self.camera, self._rays, range_m, ids, pose, *self._moved(k, tau)
+                    self.camera,
+                    self._rays,
+                    range_m,
+                    ids,
+                    pose,
+                    *self._moved(k, tau),
+                    full_size=False,
                 )
                 for tau in (taus.min(), taus.max())
             }
