@@ -67,6 +67,8 @@ from highway_env.road.lane import CircularLane, LineType, SineLane, StraightLane
 from highway_env.vehicle.behavior import IDMVehicle  # noqa: E402
 from highway_env.vehicle.kinematics import Vehicle  # noqa: E402
 
+from sim.traffic import ExtraTraffic, TrafficSource  # noqa: E402
+
 EGO_POLICIES = ("idm", "keep-lane")
 
 #: Vehicle height range for cars [m]; each vehicle draws its height from it.
@@ -576,6 +578,7 @@ class HighwayBridge:
     ego_speed_mps: the ego's IDM target speed [m/s] (None: the env's own vehicle's).
     min_sim_hz: lowest highway-env integration rate [Hz].
     stop_on_ego_crash: end :meth:`frames` after the first frame with the ego crashed.
+    traffic: vehicles added to the env's own (`sim.traffic`), drawn from the seed.
 
     Attributes: ``env`` (the gymnasium env), ``sim_hz``, ``substeps`` (sim steps
     per frame), ``road`` (:class:`RoadGeometry`, unclipped), ``ego_crash_t_s``.
@@ -592,6 +595,7 @@ class HighwayBridge:
         *,
         min_sim_hz: float = 15.0,
         stop_on_ego_crash: bool = False,
+        traffic: ExtraTraffic | None = None,
     ) -> None:
         if ego_policy not in EGO_POLICIES:
             raise ValueError(f"ego_policy must be one of {EGO_POLICIES}, got {ego_policy!r}")
@@ -634,6 +638,13 @@ class HighwayBridge:
         self._install_ego()
         self._noop = _noop_action(self.env)
         self.road = road_geometry(self.env)
+        self._traffic = None
+        if traffic is not None and traffic.active:
+            rng = np.random.default_rng([self.seed, 0x7A])
+            self._traffic = TrafficSource(
+                traffic, self.env, rng, vehicle_type=EgoIDMVehicle, sim_dt_s=1.0 / self.sim_hz
+            )
+            self._traffic.populate()
 
         self._ids: dict[int, tuple[object, int]] = {}  # id(vehicle) -> (vehicle, our id)
         self._next_id = 1
@@ -670,6 +681,8 @@ class HighwayBridge:
         """Advance the traffic by exactly 1/fps s."""
         self._behaviour.apply()
         try:
+            if self._traffic is not None:
+                self._traffic.step(self.dt_s)
             self.env.unwrapped.step(self._noop)  # terminated/truncated are ignored
         finally:
             self._pristine.apply()
@@ -789,6 +802,7 @@ def simulate(
     ego_speed_mps: float | None = None,
     *,
     return_road: bool = False,
+    traffic: ExtraTraffic | None = None,
 ) -> list[WorldFrame] | tuple[list[WorldFrame], RoadGeometry]:
     """``floor(duration_s * fps)`` frames of a fresh drive (t = 0, 1/fps, ...).
 
@@ -797,7 +811,9 @@ def simulate(
     """
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise ValueError(f"duration_s must be > 0 [s], got {duration_s!r}")
-    bridge = HighwayBridge(env_id, env_config, seed, fps, ego_policy, ego_speed_mps)
+    bridge = HighwayBridge(
+        env_id, env_config, seed, fps, ego_policy, ego_speed_mps, traffic=traffic
+    )
     try:
         frames = list(bridge.frames(int(math.floor(duration_s * fps + 1e-9))))
     finally:

@@ -54,6 +54,14 @@ class SensorConfig(_Strict):
         return cls(noise_std=0, motion_blur=False, gain_drift=0, vignetting=0, jpeg_quality=None)
 
 
+class TrafficConfig(_Strict):
+    """Vehicles added to the env's own traffic (`sim.traffic`): they enter where the road
+    begins and drive to a random exit."""
+
+    initial: int = Field(0, ge=0, le=200)  # [vehicles] spread over the entry roads at t = 0
+    per_min: float = Field(0.0, ge=0, le=600)  # [vehicles/min] entering afterwards
+
+
 class Scenario(_Strict):
     name: str = Field(min_length=1)
     description: str = ""
@@ -70,6 +78,7 @@ class Scenario(_Strict):
     can: CanConfig = CanConfig()
     vibration: VibrationConfig = VibrationConfig()
     sensor: SensorConfig = SensorConfig()
+    traffic: TrafficConfig = TrafficConfig()
 
     @field_validator("ego_policy")
     @classmethod
@@ -83,11 +92,14 @@ class Scenario(_Strict):
         return int(math.floor(self.duration_s * self.fps + 1e-9))
 
     def to_dict(self) -> dict[str, Any]:
-        """The scenario as plain data; an unset ego_speed_mps is left out, so that renders
-        and suite jobs of scenarios written before it keep their keys."""
+        """The scenario as plain data; an unset ego_speed_mps and no added traffic are left
+        out, so that renders and suite jobs of scenarios written before them keep their
+        keys."""
         d = self.model_dump(mode="json")
         if d["ego_speed_mps"] is None:
             del d["ego_speed_mps"]
+        if self.traffic == TrafficConfig():
+            del d["traffic"]
         return d
 
 

@@ -955,14 +955,17 @@ class VehicleDetector:
         far = np.zeros(n)
         cell = np.full(n, -1)
         if len(nz):
-            order = np.lexsort((d, lab))
+            order = np.argsort(lab, kind="stable")  # by label, cells in flat order within
             lab_o, d_o = lab[order], d[order]
-            change = lab_o[1:] != lab_o[:-1]
-            first = np.flatnonzero(np.r_[True, change])
-            last = np.flatnonzero(np.r_[change, True])
-            near[lab_o[first]] = d_o[first]
-            cell[lab_o[first]] = nz[order][first]
-            far[lab_o[last]] = d_o[last]
+            start = np.flatnonzero(np.r_[True, lab_o[1:] != lab_o[:-1]])
+            lo = np.minimum.reduceat(d_o, start)
+            near[lab_o[start]] = lo
+            far[lab_o[start]] = np.maximum.reduceat(d_o, start)
+            # each label's first cell (in flat order) at its nearest distance
+            seg = np.repeat(np.arange(len(start)), np.diff(np.r_[start, len(d_o)]))
+            at = np.flatnonzero(d_o == lo[seg])
+            first = at[np.r_[True, seg[at][1:] != seg[at][:-1]]]
+            cell[lab_o[first]] = nz[order[first]]
         return near, far, cell
 
     def _tall_parts(self, plan: np.ndarray) -> np.ndarray:
