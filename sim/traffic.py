@@ -1,8 +1,10 @@
 """Traffic added to a highway-env road: vehicles that enter where the road begins.
 
 Some highway-env environments bring only a handful of vehicles (roundabout-v0: four)
-and have no setting for more. `ExtraTraffic` adds vehicles of the env's own type
-(``other_vehicles_type``, IDM + MOBIL): ``initial`` of them spread over the entry
+and have no setting for more. `ExtraTraffic` adds vehicles (`sim.highway.HighwayBridge`
+drives them as it drives the ego: IDM + MOBIL and a yield at predicted crossing
+conflicts, since roundabout-v0 has no right-of-way rule; by default the env's own
+``other_vehicles_type``): ``initial`` of them spread over the entry
 roads at the start, then ``per_min`` a minute entering at the start of an entry road
 (Poisson arrivals). An entry road is a lane of the road network that no lane leads
 into; each vehicle is routed to a random exit (a node that no lane leaves) reachable
