@@ -123,13 +123,10 @@ def scene_flow_px(
     b: CameraPose,
     displacement_m: dict[int, np.ndarray],
     step: int = 4,
-    full_size: bool = True,
 ) -> np.ndarray:
     """(H, W, 2) image motion between poses a and b [px], for motion blur.
 
-    Computed on every ``step``-th pixel and interpolated (the flow is smooth); with
-    full_size False, the (ceil(H / step), ceil(W / step), 2) samples themselves, as
-    `sim.sensor.motion_blur` reads them.
+    Computed on every ``step``-th pixel and interpolated (the flow is smooth).
     rays: (H, W, 3) unit rays of the actual camera; range_m: (H, W), inf for sky;
     ids: (H, W) vehicle ids (-1 none, 0 the ego car, which moves with the camera);
     displacement_m: world displacement (3,) of each vehicle id between a and b
@@ -155,8 +152,7 @@ def scene_flow_px(
     flow = camera.project(P_b) - w_a
     flow[i == 0] = 0.0  # the ego car's body moves with the camera
     flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0).reshape(h, w, 2)
-    flow = flow.astype(np.float32)
-    return cv2.resize(flow, (W, H), interpolation=cv2.INTER_LINEAR) if full_size else flow
+    return cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
 
 
 def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndarray]:
@@ -322,13 +318,7 @@ class DriveRenderer:
             taus = exposure_times(self.sensor.exposure_s)
             ends = {
                 tau: scene_flow_px(
-                    self.camera,
-                    self._rays,
-                    range_m,
-                    ids,
-                    pose,
-                    *self._moved(k, tau),
-                    full_size=False,
+                    self.camera, self._rays, range_m, ids, pose, *self._moved(k, tau)
                 )
                 for tau in (taus.min(), taus.max())
             }

@@ -341,7 +341,6 @@ class OmniEnvRenderer:
                 pose,
                 obs.prev_pose,
                 disp,
-                full_size=False,
             )
             blur_px = [(-tau / dt) * full for tau in exposure_times(self.sensor.exposure_s)]
         obs.prev_pose, obs.prev_xy, obs.prev_time = pose, xy_now, t_s
