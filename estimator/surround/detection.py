@@ -943,12 +943,14 @@ class VehicleDetector:
         return r
 
     def _label_extent(
-        self, labels: np.ndarray, n: int
+        self, labels: np.ndarray, n: int, nz: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per label 0..n-1: nearest and farthest plan distance [m] and the flat index
         of the nearest cell (-1 for labels without cells). Works on the labelled
-        cells only (few), not the whole plan."""
-        nz = np.flatnonzero(labels)
+        cells only (few), not the whole plan; nz: their flat indices, ascending, if known
+        (cells left out of nz are left out of the extents)."""
+        if nz is None:
+            nz = np.flatnonzero(labels)
         lab = labels.ravel()[nz]
         d = self._plan_dist.ravel()[nz]
         near = np.full(n, np.inf)
@@ -1008,10 +1010,10 @@ class VehicleDetector:
         nz = np.flatnonzero(flat)
         counts = np.bincount(flat[nz], minlength=m)
         idx = np.arange(1, m)
-        _, far, cell = self._label_extent(groups, m)
+        _, far, cell = self._label_extent(groups, m, nz)
         # nearest cell of each group, from its tall parts
         if tall is not None:
-            _, _, cell_t = self._label_extent(np.where(tall > 0, groups, 0), m)
+            _, _, cell_t = self._label_extent(groups, m, nz[tall.ravel()[nz] > 0])
             # a group without a part that reaches min_height_m is low structure only
             # (guard-rail posts closed into a strip along the road): not a vehicle
             cell = cell_t
