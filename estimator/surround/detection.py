@@ -892,14 +892,11 @@ class VehicleDetector:
             return cv2.blur(z, (kk, kk)) if box else _gauss(z, K)
 
         E_mov = E_sta = None
-        d = np.empty_like(a, dtype=np.float32)
         for lam, w in warped.items():
             if lam < 1.0 and not moving:
                 continue
-            np.subtract(a, w, out=d)
-            d *= okf
-            np.square(d, out=d)
-            e = avg(d)
+            d = (a - w) * okf
+            e = avg(d * d)
             if lam < 1.0:
                 E_mov = e if E_mov is None else np.minimum(E_mov, e)
             else:
