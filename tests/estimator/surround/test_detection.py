@@ -291,3 +291,30 @@ def test_given_vehicle_mask_replaces_the_motion_test():
     assert found.motion_mask.shape == (cam.height, cam.width) and s in (1, 2)
     empty = det.detect(small, small, steps, full, full, vehicle_mask=np.zeros_like(mask))
     assert not empty.candidates
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_label_extent_matches_a_cell_by_cell_count(seed):
+    """Each blob's nearest and farthest plan distance and the first (flat order) of its
+    nearest cells, against a loop over its cells; distances on a 0.2-m grid, so that
+    ties occur; also with the cells' flat indices given."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(seed)
+    S = 90
+    blobs = (cv2.GaussianBlur(rng.random((S, S)), (0, 0), 3) > 0.52).astype(np.uint8)
+    n, labels = cv2.connectedComponents(blobs, connectivity=8)
+    yy, xx = np.mgrid[0:S, 0:S]
+    dist = np.round(np.hypot(yy - S / 2, xx - S / 2) * 0.2, 1)
+    fake = SimpleNamespace(_plan_dist=dist)
+    got = VehicleDetector._label_extent(fake, labels, n)
+    given = VehicleDetector._label_extent(fake, labels, n, np.flatnonzero(labels))
+    assert n > 5
+    for g in range(1, n):
+        cells = np.flatnonzero(labels.ravel() == g)
+        d = dist.ravel()[cells]
+        assert got[0][g] == d.min() and got[1][g] == d.max()
+        assert got[2][g] == cells[np.argmax(d == d.min())]
+    assert np.isinf(got[0][0]) and got[2][0] == -1  # label 0 (background) has no cells
+    for a, b in zip(got, given, strict=True):
+        np.testing.assert_array_equal(a, b)
