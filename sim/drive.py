@@ -62,7 +62,6 @@ from sim.scene import (
     vehicle_corners_world,
 )
 from sim.sensor import SensorModel, apply_sensor, exposure_times, gain_sequence
-from sim.traffic import ExtraTraffic
 
 
 class DriveError(RuntimeError):
@@ -366,7 +365,7 @@ def prepare_drive(
         scenario.ego_policy,
         scenario.ego_speed_mps,
         return_road=True,
-        traffic=ExtraTraffic(scenario.traffic.initial, scenario.traffic.per_min),
+        traffic=scenario.traffic,
     )
     frames = frames[:n]
     if len(frames) < n:

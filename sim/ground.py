@@ -107,6 +107,7 @@ class MipAtlas:
         self.per_m = 1.0 / (self.cell_m * 2.0 ** np.arange(len(levels)))  # (L,) cells per m
         sizes = np.array([lv.shape[1] for lv in levels], np.float64)
         self.period = sizes if periodic else np.zeros(len(levels))
+        self.inv_period = np.divide(1.0, self.period, out=np.zeros(len(levels)), where=sizes > 0)
         self.origin_xy = np.asarray(origin_xy, np.float64)
 
     @property
@@ -417,8 +418,7 @@ def _atlas_args(a: MipAtlas, o: np.ndarray) -> tuple:
     off = o[:2] - a.origin_xy
     if a.period[0] > 0:
         off = np.mod(off, a.period[0] * a.cell_m)
-    inv_period = np.divide(1.0, a.period, out=np.zeros_like(a.period), where=a.period > 0)
-    return (a.atlas, a.per_m, a.period, a.col, a.row0, float(off[0]), float(off[1]), inv_period)
+    return (a.atlas, a.per_m, a.period, a.col, a.row0, float(off[0]), float(off[1]), a.inv_period)
 
 
 @njit(cache=True, inline="always", fastmath=_FAST)

@@ -67,7 +67,8 @@ from highway_env.road.lane import CircularLane, LineType, SineLane, StraightLane
 from highway_env.vehicle.behavior import IDMVehicle  # noqa: E402
 from highway_env.vehicle.kinematics import Vehicle  # noqa: E402
 
-from sim.traffic import ExtraTraffic, TrafficSource  # noqa: E402
+from sim.scenario import TrafficConfig  # noqa: E402
+from sim.traffic import TrafficSource  # noqa: E402
 
 EGO_POLICIES = ("idm", "keep-lane")
 
@@ -595,7 +596,7 @@ class HighwayBridge:
         *,
         min_sim_hz: float = 15.0,
         stop_on_ego_crash: bool = False,
-        traffic: ExtraTraffic | None = None,
+        traffic: TrafficConfig | None = None,
     ) -> None:
         if ego_policy not in EGO_POLICIES:
             raise ValueError(f"ego_policy must be one of {EGO_POLICIES}, got {ego_policy!r}")
@@ -802,7 +803,7 @@ def simulate(
     ego_speed_mps: float | None = None,
     *,
     return_road: bool = False,
-    traffic: ExtraTraffic | None = None,
+    traffic: TrafficConfig | None = None,
 ) -> list[WorldFrame] | tuple[list[WorldFrame], RoadGeometry]:
     """``floor(duration_s * fps)`` frames of a fresh drive (t = 0, 1/fps, ...).
 

@@ -61,6 +61,10 @@ class TrafficConfig(_Strict):
     initial: int = Field(0, ge=0, le=200)  # [vehicles] spread over the entry roads at t = 0
     per_min: float = Field(0.0, ge=0, le=600)  # [vehicles/min] entering afterwards
 
+    @property
+    def active(self) -> bool:
+        return self.initial > 0 or self.per_min > 0
+
 
 class Scenario(_Strict):
     name: str = Field(min_length=1)
@@ -98,7 +102,7 @@ class Scenario(_Strict):
         d = self.model_dump(mode="json")
         if d["ego_speed_mps"] is None:
             del d["ego_speed_mps"]
-        if self.traffic == TrafficConfig():
+        if not self.traffic.active:
             del d["traffic"]
         return d
 

@@ -1,47 +1,26 @@
 """Traffic added to a highway-env road: vehicles that enter where the road begins.
 
 Some highway-env environments bring only a handful of vehicles (roundabout-v0: four)
-and have no setting for more. `ExtraTraffic` adds vehicles (`sim.highway.HighwayBridge`
-drives them as it drives the ego: IDM + MOBIL and a yield at predicted crossing
-conflicts, since roundabout-v0 has no right-of-way rule; by default the env's own
-``other_vehicles_type``): ``initial`` of them spread over the entry
-roads at the start, then ``per_min`` a minute entering at the start of an entry road
-(Poisson arrivals). An entry road is a lane of the road network that no lane leads
-into; each vehicle is routed to a random exit (a node that no lane leaves) reachable
-from it, and is removed once past the end of its exit road. A vehicle is placed only
-where no other is within ``CLEARANCE_M`` (an arrival waits for the next frame).
+and have no setting for more. A scenario's `sim.scenario.TrafficConfig` adds vehicles
+(`sim.highway.HighwayBridge` drives them as it drives the ego: IDM + MOBIL and a yield at
+predicted crossing conflicts, since roundabout-v0 has no right-of-way rule): ``initial``
+of them spread over the entry roads at the start, then ``per_min`` a minute entering at
+the start of an entry road (Poisson arrivals). An entry road is a lane of the road
+network that no lane leads into; each vehicle is routed to a random exit (a node that no
+lane leaves) reachable from it, and is removed once past the end of its exit road. A
+vehicle is placed only where no other is within ``CLEARANCE_M`` (an arrival waits for the
+next frame).
 Everything is drawn from the generator the bridge seeds with the drive's seed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from highway_env import utils
+
+from sim.scenario import TrafficConfig
 
 CLEARANCE_M = 12.0  # [m] nearest other vehicle where one is placed, 5..30
 SPEED_RANGE = (0.6, 0.9)  # [-] a placed vehicle's speed, as a fraction of the lane's limit
-
-
-@dataclass(frozen=True)
-class ExtraTraffic:
-    """initial: vehicles placed at the start [-], 0..200; per_min: arrivals later
-    [vehicles/min], 0..600."""
-
-    initial: int = 0
-    per_min: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not (0 <= self.initial <= 200) or not (0.0 <= self.per_min <= 600.0):
-            raise ValueError(
-                f"ExtraTraffic: initial in 0..200 and per_min in 0..600, got "
-                f"{self.initial!r}, {self.per_min!r}"
-            )
-
-    @property
-    def active(self) -> bool:
-        return self.initial > 0 or self.per_min > 0
 
 
 def entries_and_exits(network: object) -> tuple[list[tuple], list[str]]:
@@ -60,20 +39,20 @@ def entries_and_exits(network: object) -> tuple[list[tuple], list[str]]:
 
 
 class TrafficSource:
-    """Places `ExtraTraffic`'s vehicles on a highway-env env's road."""
+    """Places a `TrafficConfig`'s vehicles on a highway-env env's road: vehicle_type's
+    (a highway-env vehicle class with a ``sim_dt_s``, the integration step [s])."""
 
     def __init__(
         self,
-        traffic: ExtraTraffic,
+        traffic: TrafficConfig,
         env: object,
         rng: np.random.Generator,
-        vehicle_type: type | None = None,
-        sim_dt_s: float | None = None,
+        vehicle_type: type,
+        sim_dt_s: float,
     ) -> None:
         base = env.unwrapped
         self.traffic, self.road, self.rng = traffic, base.road, rng
-        own_type = base.config["other_vehicles_type"]
-        self.vehicle_type = vehicle_type or utils.class_from_path(own_type)
+        self.vehicle_type = vehicle_type
         network = self.road.network
         entries, exits = entries_and_exits(network)
         self.routes: list[tuple[tuple, list[str]]] = []
@@ -122,8 +101,7 @@ class TrafficSource:
         limit = lane.speed_limit or 15.0
         speed = limit * float(self.rng.uniform(*SPEED_RANGE))
         v = self.vehicle_type.make_on_lane(self.road, lane_index, longitudinal=s_m, speed=speed)
-        if self.sim_dt_s is not None:
-            v.sim_dt_s = self.sim_dt_s
+        v.sim_dt_s = self.sim_dt_s
         v.plan_route_to(exits[int(self.rng.integers(len(exits)))])
         v.randomize_behavior()
         self.road.vehicles.append(v)

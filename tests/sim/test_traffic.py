@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sim.highway import HighwayBridge, simulate
-from sim.scenario import Scenario, ScenarioError, scenario_from_dict
-from sim.traffic import ExtraTraffic, entries_and_exits
+from sim.scenario import Scenario, ScenarioError, TrafficConfig, scenario_from_dict
+from sim.traffic import entries_and_exits
 
 FPS = 15.0
 
@@ -23,7 +23,7 @@ def test_the_roundabouts_entries_and_exits_are_its_four_access_roads():
 
 
 def test_added_traffic_enters_spreads_and_is_the_same_for_the_same_seed():
-    traffic = ExtraTraffic(initial=8, per_min=60.0)
+    traffic = TrafficConfig(initial=8, per_min=60.0)
     a = simulate("roundabout-v0", {}, 3, FPS, 4.0, traffic=traffic)
     b = simulate("roundabout-v0", {}, 3, FPS, 4.0, traffic=traffic)
     plain = simulate("roundabout-v0", {}, 3, FPS, 4.0)
@@ -42,7 +42,7 @@ def test_added_traffic_enters_spreads_and_is_the_same_for_the_same_seed():
 
 
 def test_added_vehicles_leave_past_their_exit():
-    b = HighwayBridge("roundabout-v0", {}, 1, FPS, traffic=ExtraTraffic(initial=6))
+    b = HighwayBridge("roundabout-v0", {}, 1, FPS, traffic=TrafficConfig(initial=6))
     try:
         src = b._traffic
         first = list(src.added)
@@ -57,8 +57,8 @@ def test_added_vehicles_leave_past_their_exit():
 
 
 def test_traffic_settings_are_checked():
-    with pytest.raises(ValueError, match="initial in 0..200"):
-        ExtraTraffic(initial=-1)
+    with pytest.raises(ValueError, match="initial"):
+        TrafficConfig(initial=-1)
     with pytest.raises(ScenarioError, match="traffic.per_min"):
         scenario_from_dict({"name": "x", "traffic": {"per_min": -3}})
     # no added traffic is left out of a scenario's data (render caches keep their keys)
