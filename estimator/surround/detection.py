@@ -29,15 +29,20 @@ For each hypothesis the earlier frame is warped onto the current one
 (`estimator.egomotion.compensation`); ``E_lambda = <(I - I_lambda)^2>`` is the
 Gaussian-windowed residual energy. The score
 
-    m = (min_static E - min_moving E) / (S + k + <|g|^2> sigma^2)
+    m = max_j (min_static E - E_j) / (S_j + k + <|g|^2> sigma^2)
 
-is positive where a moving hypothesis explains the pixel better than every
-static one. ``S = <(I_1 - I_0)^2>`` (how different the road and the co-moving
-predictions are there: where the texture is the same either way, e.g. streaks
-along the flow, nothing can be decided), ``k`` a noise floor [grey level^2] and
-``<|g|^2> sigma^2`` the residual that a misregistration of sigma px leaves on
-an edge (aliasing of the render, interpolation, ego-motion error). It is like
-eq. 22's normalisation, for two hypotheses instead of one. The score is
+over the moving hypotheses j is positive where a moving hypothesis explains the
+pixel better than every static one. ``S_j = <(I_1 - I_j)^2>`` is how different
+the road's and hypothesis j's predictions are there (where the texture is the
+same either way, e.g. streaks along the flow, nothing can be decided), ``k`` a
+noise floor [grey level^2] and ``<|g|^2> sigma^2`` the residual that a
+misregistration of sigma px leaves on an edge (aliasing of the render,
+interpolation, ego-motion error). It is like eq. 22's normalisation, for a pair
+of hypotheses instead of one. In the small-motion limit ``E_lambda ~ (lambda -
+lambda*)^2 S_0`` for a point at lambda*, so ``m_j ~ ((1 - lambda*)^2 - (lambda* -
+lambda_j)^2) / (1 - lambda_j)^2``: 1 on hypothesis j, -1 on the road, and above
+the threshold of 0.5 for every lambda* < 0.81 with the hypotheses 0, 0.25, 0.5
+and 0.75 (one hypothesis at 0 alone would stop at lambda* < 0.25). The score is
 computed at the working scale and one coarser pyramid level (a vehicle close
 by moves tens of pixels: the coarse level keeps the hypotheses apart).
 
@@ -69,10 +74,9 @@ and m decides nothing, while a crossing vehicle is explained by none of them.
 There, as in eq. 22, a pixel that no static hypothesis explains is moving:
 ``r = min_static E / (k + <|g|^2> sigma^2) > still_threshold``.
 
-Not detected: vehicles the ego car overtakes at more than about a quarter of its
-speed (in the small-motion limit ``E_lambda ~ (lambda - lambda*)^2 S``, so m is about
-``1 - 2 lambda*`` for a point at lambda*, below the threshold for lambda* > 0.25:
-docs/DESIGN.md, "the motion score's units"); vehicles that do not move over the
+Not detected: vehicles the ego car overtakes fast, lambda* > 0.81 (driving at less
+than about a fifth of its speed; docs/DESIGN.md, "the motion score: a pair of
+hypotheses at a time"); vehicles that do not move over the
 ground when the ego car does not either (nothing distinguishes them from static
 structure in two frames) and, while the ego car moves, vehicles whose motion is not
 forward along the road (crossing traffic): those must show a larger-than-static
@@ -124,7 +128,9 @@ class DetectorConfig:
     # (finer steps near the road: periodic structure such as guard-rail posts must not
     # fit the moving hypothesis better than every static one by aliasing)
     static_lambdas: tuple[float, ...] = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)  # [-] incl. 1.0
-    moving_lambdas: tuple[float, ...] = (0.0,)  # [-] must include 0.0 (fixed to the car)
+    # moving points: fixed to the car (0) and driving forward slower than the ego car
+    # (0 < lambda < 1: overtaken vehicles), in steps of a quarter of the road's motion
+    moving_lambdas: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)  # [-] must include 0.0
     window_px: float = 10.0  # [px] Gaussian window (K) of the residual energies
     energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
@@ -878,12 +884,11 @@ class VehicleDetector:
         ok: np.ndarray,
         K: float,
         box: bool,
-        moving: bool = True,
-    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, Callable]:
-        """(min_static E, min_moving E or None, <|g|^2>, the window average) over ok.
+    ) -> tuple[np.ndarray, np.ndarray, Callable]:
+        """(min static E, <|g|^2>, the window average) over ok.
 
-        E_lambda = <(a - I_lambda)^2>; <.>: Gaussian window K [px] (``box``: K x K box).
-        moving: also the moving hypotheses (lambda < 1); else min_moving E is None.
+        E_lambda = <(a - I_lambda)^2> over the static hypotheses (lambda >= 1); <.>:
+        Gaussian window K [px] (``box``: a K x K box).
         """
         okf = ok.astype(np.float32)
         kk = int(K)
@@ -891,20 +896,16 @@ class VehicleDetector:
         def avg(z: np.ndarray) -> np.ndarray:
             return cv2.blur(z, (kk, kk)) if box else _gauss(z, K)
 
-        E_mov = E_sta = None
+        E_sta = None
         for lam, w in warped.items():
-            if lam < 1.0 and not moving:
-                continue
-            d = (a - w) * okf
-            e = avg(d * d)
-            if lam < 1.0:
-                E_mov = e if E_mov is None else np.minimum(E_mov, e)
-            else:
+            if lam >= 1.0:
+                d = (a - w) * okf
+                e = avg(d * d)
                 E_sta = e if E_sta is None else np.minimum(E_sta, e)
         gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
         G2 = avg((gu * gu + gv * gv) * okf)
-        return E_sta, E_mov, G2, avg
+        return E_sta, G2, avg
 
     @staticmethod
     def _score(
@@ -916,14 +917,22 @@ class VehicleDetector:
         sigma: float,
         box: bool = False,
     ) -> np.ndarray:
-        """m = (min_static E - min_moving E) / (S + k + <|g|^2> sigma^2), 0 outside ok.
+        """m = max_j (min_static E - E_j) / (S_j + k + <|g|^2> sigma^2), 0 outside ok.
 
-        <.>: Gaussian window K [px] (``box``: a K x K box).
+        j: the moving hypotheses; S_j = <(I_1 - I_j)^2>, how different the road's and
+        hypothesis j's predictions are. <.>: Gaussian window K [px] (``box``: K x K box).
         """
-        E_sta, E_mov, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
-        sep = (warped[1.0] - warped[0.0]) * ok.astype(np.float32)
-        S = avg(sep * sep)
-        m = (E_sta - E_mov) / (S + k + G2 * sigma * sigma)
+        E_sta, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
+        okf = ok.astype(np.float32)
+        floor = k + G2 * (sigma * sigma)
+        m = None
+        for lam, w in warped.items():
+            if lam >= 1.0:
+                continue
+            d = (a - w) * okf
+            sep = (warped[1.0] - w) * okf  # S_j: road against hypothesis j
+            m_j = (E_sta - avg(d * d)) / (avg(sep * sep) + floor)
+            m = m_j if m is None else np.maximum(m, m_j)
         m[~ok] = 0.0
         return m
 
@@ -937,7 +946,7 @@ class VehicleDetector:
         sigma: float,
     ) -> np.ndarray:
         """r = min_static E / (k + <|g|^2> sigma^2), 0 outside ok (Gaussian window K [px])."""
-        E_sta, _, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False, moving=False)
+        E_sta, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False)
         r = E_sta / (k + G2 * sigma * sigma)
         r[~ok] = 0.0
         return r

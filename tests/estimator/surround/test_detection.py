@@ -139,6 +139,40 @@ def test_score_separates_a_comoving_patch_from_the_road():
     assert np.mean(m[road] > cfg.score_threshold) < 0.002
 
 
+def test_score_finds_an_overtaken_patch_and_not_a_raised_static_one():
+    """A patch moving like lambda = 0.6 (a vehicle the ego car overtakes, between two
+    moving hypotheses) scores above the threshold with the pairwise score; one scored
+    against the fixed-to-the-car hypothesis alone would not (m ~ 1 - 2 lambda* < 0).
+    A patch moving like a static point 0.7 m up (lambda 1.5) stays below it."""
+    cam, mount = load_camera("omni-near")
+    cfg = DetectorConfig()
+    det = VehicleDetector(cam, mount, cfg)
+    comp, s = det.comp, cfg.scale
+    early = _textured((cam.height // s, cam.width // s), 2)
+    x, n = X_HIGHWAY, comp.n
+
+    def warp(lam: float) -> np.ndarray:
+        return comp.warp_h(early, hypothesis_homography(x, mount.K0, n, DT, lam), s)[0]
+
+    warped = {lam: warp(lam) for lam in cfg.moving_lambdas + cfg.static_lambdas}
+    current = warped[1.0].copy()
+    ok = det.road_s & det.valid_s
+    patches = {}
+    for lam, (v0, u0) in ((0.6, (150, 25)), (1.5, (40, 150))):
+        patch = np.zeros_like(ok)
+        patch[v0 : v0 + 14, u0 : u0 + 24] = True
+        patch &= ok
+        assert patch.sum() > 150
+        current[patch] = warp(lam)[patch]
+        patches[lam] = cv2.erode(patch.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    args = (ok, cfg.window_px / s, cfg.energy_k, cfg.registration_sigma_px / s)
+    m = det._score(current, warped, *args)
+    assert np.median(m[patches[0.6]]) > cfg.score_threshold
+    assert np.median(m[patches[1.5]]) < 0.0
+    only_fixed = {lam: w for lam, w in warped.items() if lam == 0.0 or lam >= 1.0}
+    assert np.median(det._score(current, only_fixed, *args)[patches[0.6]]) < cfg.score_threshold
+
+
 def test_normalized_difference_is_zero_for_identical_frames():
     img = _textured((64, 64), 2)
     nd = normalized_difference(img, img, 50.0, 7)
