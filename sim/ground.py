@@ -107,7 +107,8 @@ class MipAtlas:
         self.per_m = 1.0 / (self.cell_m * 2.0 ** np.arange(len(levels)))  # (L,) cells per m
         sizes = np.array([lv.shape[1] for lv in levels], np.float64)
         self.period = sizes if periodic else np.zeros(len(levels))
-        self.inv_period = np.divide(1.0, self.period, out=np.zeros(len(levels)), where=sizes > 0)
+        per = self.period
+        self.inv_period = np.divide(1.0, per, out=np.zeros(len(levels)), where=per > 0)
         self.origin_xy = np.asarray(origin_xy, np.float64)
 
     @property

@@ -3,6 +3,8 @@ fixed to the world, the sky where the plane is not."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -71,6 +73,18 @@ def test_a_mip_level_is_twice_the_blur(blur):
     lo, frac = tex.levels(np.array([blur]))
     assert lo[0] + frac[0] == pytest.approx(np.log2(2 * blur / 0.01))
     assert atlas.n_levels == 1
+
+
+def test_only_a_periodic_atlas_has_an_inverse_period():
+    """A periodic atlas keeps 1 / period per level; a raster (no period) keeps 0, with no
+    division by zero."""
+    levels = [np.zeros((64, 64, 1), np.float32), np.zeros((32, 32, 1), np.float32)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        raster = MipAtlas(levels, 0.01, periodic=False)
+        tile = MipAtlas(levels, 0.01, periodic=True)
+    assert np.all(raster.period == 0.0) and np.all(raster.inv_period == 0.0)
+    assert tile.inv_period == pytest.approx([1 / 64, 1 / 32])
 
 
 def test_a_moved_window_of_the_same_world_takes_over_the_built_tiles():
