@@ -38,7 +38,10 @@ same either way, e.g. streaks along the flow, nothing can be decided), ``k`` a
 noise floor [grey level^2] and ``<|g|^2> sigma^2`` the residual that a
 misregistration of sigma px leaves on an edge (aliasing of the render,
 interpolation, ego-motion error). It is like eq. 22's normalisation, for a pair
-of hypotheses instead of one. In the small-motion limit ``E_lambda ~ (lambda -
+of hypotheses instead of one. A hypothesis between the car and the road (0 <
+lambda_j < 1) is scored only where S_j reaches that floor: elsewhere its
+prediction is the road's within noise, and dividing by a small S_j would turn
+noise and disocclusions into motion. In the small-motion limit ``E_lambda ~ (lambda -
 lambda*)^2 S_0`` for a point at lambda*, so ``m_j ~ ((1 - lambda*)^2 - (lambda* -
 lambda_j)^2) / (1 - lambda_j)^2``: 1 on hypothesis j, -1 on the road, and above
 the threshold of 0.5 for every lambda* < 0.81 with the hypotheses 0, 0.25, 0.5
@@ -920,7 +923,10 @@ class VehicleDetector:
         """m = max_j (min_static E - E_j) / (S_j + k + <|g|^2> sigma^2), 0 outside ok.
 
         j: the moving hypotheses; S_j = <(I_1 - I_j)^2>, how different the road's and
-        hypothesis j's predictions are. <.>: Gaussian window K [px] (``box``: K x K box).
+        hypothesis j's predictions are. A hypothesis between the car and the road
+        (0 < lambda_j < 1) counts only where S_j >= k + <|g|^2> sigma^2: where it
+        predicts what the road does within noise and misregistration, it decides nothing.
+        <.>: Gaussian window K [px] (``box``: a K x K box).
         """
         E_sta, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
         okf = ok.astype(np.float32)
@@ -930,8 +936,11 @@ class VehicleDetector:
             if lam >= 1.0:
                 continue
             d = (a - w) * okf
-            sep = (warped[1.0] - w) * okf  # S_j: road against hypothesis j
-            m_j = (E_sta - avg(d * d)) / (avg(sep * sep) + floor)
+            sep = (warped[1.0] - w) * okf
+            S_j = avg(sep * sep)  # road against hypothesis j
+            m_j = (E_sta - avg(d * d)) / (S_j + floor)
+            if lam > 0.0:  # decided only where its prediction and the road's differ
+                m_j[S_j < floor] = -1.0  # by more than the floor (noise, misregistration)
             m = m_j if m is None else np.maximum(m, m_j)
         m[~ok] = 0.0
         return m
