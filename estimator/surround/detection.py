@@ -884,16 +884,15 @@ class VehicleDetector:
     def _energies(
         a: np.ndarray,
         warped: dict[float, np.ndarray],
-        ok: np.ndarray,
+        okf: np.ndarray,
         K: float,
         box: bool,
     ) -> tuple[np.ndarray, np.ndarray, Callable]:
-        """(min static E, <|g|^2>, the window average) over ok.
+        """(min static E, <|g|^2>, the window average) over okf (float32 0/1 mask).
 
         E_lambda = <(a - I_lambda)^2> over the static hypotheses (lambda >= 1); <.>:
         Gaussian window K [px] (``box``: a K x K box).
         """
-        okf = ok.astype(np.float32)
         kk = int(K)
 
         def avg(z: np.ndarray) -> np.ndarray:
@@ -928,8 +927,8 @@ class VehicleDetector:
         predicts what the road does within noise and misregistration, it decides nothing.
         <.>: Gaussian window K [px] (``box``: a K x K box).
         """
-        E_sta, G2, avg = VehicleDetector._energies(a, warped, ok, K, box)
         okf = ok.astype(np.float32)
+        E_sta, G2, avg = VehicleDetector._energies(a, warped, okf, K, box)
         floor = k + G2 * (sigma * sigma)
         m = None
         for lam, w in warped.items():
@@ -955,7 +954,7 @@ class VehicleDetector:
         sigma: float,
     ) -> np.ndarray:
         """r = min_static E / (k + <|g|^2> sigma^2), 0 outside ok (Gaussian window K [px])."""
-        E_sta, G2, _ = VehicleDetector._energies(a, warped, ok, K, box=False)
+        E_sta, G2, _ = VehicleDetector._energies(a, warped, ok.astype(np.float32), K, box=False)
         r = E_sta / (k + G2 * sigma * sigma)
         r[~ok] = 0.0
         return r

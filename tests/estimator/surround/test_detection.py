@@ -173,6 +173,21 @@ def test_score_finds_an_overtaken_patch_and_not_a_raised_static_one():
     assert np.median(det._score(current, only_fixed, *args)[patches[0.6]]) < cfg.score_threshold
 
 
+@pytest.mark.parametrize(("delta", "counts"), [(8.9, False), (20.0, True)])
+def test_an_in_between_hypothesis_counts_only_where_it_differs_from_the_road(delta, counts):
+    """Flat images (no gradient: the floor is k). The current frame is the road's
+    prediction + delta, hypothesis 0.75's is the road's + delta / 2: it explains the pixel
+    better than the road, but where it differs from the road by less than the floor
+    (S_j = delta^2 / 4 < k) it must not make the pixel move."""
+    k = 40.0
+    road = np.full((40, 40), 100.0, np.float32)
+    warped = {0.0: road + 100.0, 0.75: road + delta / 2, 1.0: road, 1.5: road - 50.0}
+    ok = np.ones(road.shape, bool)
+    m = VehicleDetector._score(road + delta, warped, ok, 5.0, k, 1.0)
+    assert (delta / 2) ** 2 < k or counts
+    assert np.all(m > 0.5) if counts else np.all(m < 0.0)
+
+
 def test_normalized_difference_is_zero_for_identical_frames():
     img = _textured((64, 64), 2)
     nd = normalized_difference(img, img, 50.0, 7)
