@@ -69,10 +69,15 @@ def gt_road_mask(
     return z < max_height_m
 
 
+def gt_vehicle_ids(drive_dir: Path, frame: int) -> np.ndarray:
+    """(H, W) int64: the id of the vehicle each pixel of ``frame`` sees (its
+    ground-truth ``id``), -1 for none and 0 for the ego car (from the id image)."""
+    return read_png(Path(drive_dir) / "ids" / f"{frame:06d}.png").astype(np.int64) - 1
+
+
 def gt_vehicle_mask(drive_dir: Path, frame: int) -> np.ndarray:
     """(H, W) bool: pixels of ``frame`` that see another vehicle (id image; not the ego car)."""
-    ids = read_png(Path(drive_dir) / "ids" / f"{frame:06d}.png").astype(np.int64) - 1
-    return ids > 0  # -1: no vehicle, 0: the ego car
+    return gt_vehicle_ids(drive_dir, frame) > 0
 
 
 def points_above_road(

@@ -73,6 +73,14 @@ def _surround_section(surround: dict) -> str:
         }
         cols = ("frames", "recall", "precision", "mota", "idf1", "hota", "median_error_m")
         parts.append(f"<h3>by the ego car's state</h3>{_rows_table(rows, cols)}")
+    seg = surround.get("segmentation")
+    if isinstance(seg, dict):
+        parts.append(
+            "<h3>the motion mask against the vehicles' pixels</h3>"
+            f"<p>pixel recall {_fmt(seg.get('pixel_recall'))}, pixel precision "
+            f"{_fmt(seg.get('pixel_precision'))} ({_fmt(seg.get('frames'))} frames)</p>"
+            + _rows_table(seg.get("range_bands", {}), ("pixel_recall", "vehicle_px"))
+        )
     return "".join(parts) + "</div>"
 
 

@@ -55,11 +55,12 @@ from scenarios.point_audit import (
     PullMap,
     camera_unit_rays,
     gt_road_mask,
-    gt_vehicle_mask,
+    gt_vehicle_ids,
     points_above_road,
 )
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
+from scenarios.segmentation import SegmentationAudit
 from sim.drive import load_groundtruth, render_drive
 
 VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
@@ -165,6 +166,12 @@ def run_scenario(
     det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
     est = make_estimator(estimator, camera, mount)
     surround = make_surround(detector, camera, mount, det_cfg)
+    # the motion mask against the vehicles' true pixels (built-in detectors have one)
+    audit = (
+        SegmentationAudit(surround.detector.analysed_area)
+        if isinstance(surround, SurroundAnalyzer)
+        else None
+    )
     unit_rays = camera_unit_rays(camera) if road_mask else None
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
@@ -184,7 +191,8 @@ def run_scenario(
             masks = {"road_mask": given} if given is not None else {}
             rec = est.step(image, t, can.at(t), **masks)
             t1 = time.perf_counter()
-            vmask = gt_vehicle_mask(drive_dir, k) if vehicle_mask else None
+            ids = gt_vehicle_ids(drive_dir, k) if vehicle_mask or audit is not None else None
+            vmask = ids > 0 if vehicle_mask else None
             t2 = time.perf_counter()  # the detector's time, without the truth's mask
             sf = surround.step(
                 k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps, vehicle_mask=vmask
@@ -203,6 +211,9 @@ def run_scenario(
             if sf is None:
                 continue
             gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
+            if audit is not None:
+                ranges = {g.id: _polygon_distance(np.zeros(2), g.footprint_xy) for g in gt_set}
+                audit.add(sf.detection.motion_mask, ids, ranges)
             moving = gt[k]["ego"]["speed_mps"] > EGO_MOVING_MPS
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
             det_boxes = [d.box for d in sf.detection.detections]
@@ -281,7 +292,11 @@ def run_scenario(
         "localization": det_m["localization"],
         "track_detection": trk["track_detection"],
         "track_localization": trk["track_localization"],
-        "surround": {"detections": breakdown(eval_det, mcfg), **trk["surround"]},
+        "surround": {
+            "detections": breakdown(eval_det, mcfg),
+            **trk["surround"],
+            **({"segmentation": audit.result()} if audit is not None else {}),
+        },
         "compensation": compensation,
         "points_above_road": points_above_road(drive_dir, camera, gt, records),
         "point_pull": _point_pull(pull, series, out_dir / "pull.png", still_image),

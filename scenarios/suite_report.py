@@ -55,6 +55,8 @@ TABLE_METRICS = (
     ("tracking.hota", "HOTA"),
     ("localization.median_error_m", "loc. median [m]"),
     ("localization.centre_median_error_m", "box centre median [m]"),
+    ("surround.segmentation.pixel_recall", "mask pixel recall"),
+    ("surround.segmentation.pixel_precision", "mask pixel precision"),
 )
 
 _CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1800px}

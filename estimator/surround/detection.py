@@ -511,6 +511,12 @@ class VehicleDetector:
         self._clearance_scale = (h - min(cfg.vehicle_clearance_m, 0.5 * h)) / h
         self._box_cfg = BoxFitConfig(size_m=cfg.hidden_box_m)
 
+    @property
+    def analysed_area(self) -> np.ndarray:
+        """(H, W) bool, full resolution: the pixels the motion test decides (the field of
+        view less its margins, whose rays meet the road)."""
+        return self.valid & self.comp.road
+
     @staticmethod
     def _analysed_area(valid: np.ndarray, cfg: DetectorConfig) -> np.ndarray:
         """(H, W) bool: the field of view less border_margin_px inside its outer rim and

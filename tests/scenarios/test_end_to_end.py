@@ -61,6 +61,12 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
         assert sur[part]["ego_state"]["moving"]["frames"] >= 20
     assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
     assert "by motion relative to the ego car" in (out / "report.html").read_text()
+    seg = sur["segmentation"]  # the motion mask against the true vehicle pixels
+    assert seg["frames"] == 23 and seg["vehicle_px"] > 0 and seg["marked_px"] > 0
+    assert 0.0 < seg["pixel_recall"] < 1.0 and 0.0 < seg["pixel_precision"] <= 1.0
+    assert list(seg["range_bands"]) == list(bands)
+    assert sum(b["vehicle_px"] for b in seg["range_bands"].values()) == seg["vehicle_px"]
+    assert "the motion mask against the vehicles' pixels" in (out / "report.html").read_text()
     audit = m["points_above_road"]  # a highway with guard rails: some, not most
     assert audit["frames"] == 23 and audit["inliers"] > 0
     assert 0.0 <= audit["inlier_share"] < 0.5 and 0.0 <= audit["speed_info_share"] < 0.5
