@@ -112,6 +112,11 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
         ("ego_error.png", "ego-motion against ground truth and the CAN prior"),
         ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
         ("recall_polar.png", "track recall around the car, by range and bearing"),
+        (
+            "segmentation.png",
+            "the motion mask against the vehicles' true pixels (yellow: marked vehicle, green: "
+            "vehicle not marked, red: marked, no vehicle)",
+        ),
         ("pull.png", "where the images pull the estimate off the truth (point_pull)"),
     ):
         if (out_dir / img).exists():

@@ -214,6 +214,13 @@ def run_scenario(
             if audit is not None:
                 ranges = {g.id: _polygon_distance(np.zeros(2), g.footprint_xy) for g in gt_set}
                 audit.add(sf.detection.motion_mask, ids, ranges)
+                if k == still_k:
+                    write_png(
+                        out_dir / "segmentation.png",
+                        viz.segmentation_picture(
+                            image, sf.detection.motion_mask, ids > 0, audit.area
+                        ),
+                    )
             moving = gt[k]["ego"]["speed_mps"] > EGO_MOVING_MPS
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
             det_boxes = [d.box for d in sf.detection.detections]

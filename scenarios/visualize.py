@@ -104,6 +104,33 @@ def detection_panel(image: np.ndarray, sframe) -> np.ndarray:
     return _label(_fit(out), "(d) detections: track id, x,y [m]")
 
 
+SEGMENTATION_COLOURS = {  # RGB of the motion mask's audit picture
+    "marked vehicle": (255, 220, 0),
+    "vehicle not marked": (0, 210, 0),
+    "marked, no vehicle": (235, 0, 0),
+}
+
+
+def segmentation_picture(
+    image: np.ndarray, mask: np.ndarray, vehicles: np.ndarray, area: np.ndarray
+) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: the motion mask against the vehicles' true pixels over the
+    detector's analysed area (`scenarios.segmentation`), in `SEGMENTATION_COLOURS` over the
+    dimmed image (darker outside the area). image (H, W, 3) RGB uint8; mask, vehicles,
+    area: (H, W) bool."""
+    mask, vehicles, area = (np.asarray(a, bool) for a in (mask, vehicles, area))
+    out = np.asarray(image, np.float32) * 0.6
+    out[~area] *= 0.4
+    masks = (mask & vehicles, ~mask & vehicles, mask & ~vehicles)
+    for sel, rgb in zip(masks, SEGMENTATION_COLOURS.values(), strict=True):
+        sel = sel & area
+        out[sel] = 0.3 * out[sel] + 0.7 * np.asarray(rgb, np.float32)
+    out = np.clip(out, 0, 255).astype(np.uint8)
+    for i, (name, rgb) in enumerate(SEGMENTATION_COLOURS.items()):
+        cv2.putText(out, name, (6, 18 + 18 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.5, rgb, 1, cv2.LINE_AA)
+    return out
+
+
 def surround_panel(
     image: np.ndarray, plan: PlanView, tracks, gt_xy: np.ndarray | None = None
 ) -> np.ndarray:

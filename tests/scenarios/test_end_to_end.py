@@ -85,6 +85,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
         "surround.png",
         "pull.png",
         "recall_polar.png",
+        "segmentation.png",
         "analysis.mp4",
         "report.html",
         "drive/drive.mp4",

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from scenarios.segmentation import SegmentationAudit
+from scenarios.visualize import SEGMENTATION_COLOURS, segmentation_picture
 
 
 def _frame() -> tuple[np.ndarray, np.ndarray]:
@@ -57,3 +58,25 @@ def test_nothing_marked_has_no_precision_and_a_bad_shape_is_named():
     assert math.isnan(r["pixel_precision"]) and math.isnan(r["pixel_recall"])
     with pytest.raises(ValueError, match=r"mask \(5, 5\)"):
         audit.add(np.zeros((5, 5), bool), ids, {})
+
+
+def test_the_audit_picture_colours_each_kind_of_pixel():
+    ids, area = _frame()
+    area[:, 9] = False
+    mask = np.zeros_like(area)
+    mask[0, :2] = True  # vehicle 3, marked
+    mask[5, :4] = True  # road, marked
+    mask[1, 9] = True  # outside the area
+    grey = np.full((10, 10, 3), 100, np.uint8)
+    out = segmentation_picture(grey, mask, ids > 0, area)
+    assert out.shape == (10, 10, 3) and out.dtype == np.uint8
+
+    def hue(px: np.ndarray) -> int:  # index of the colour the pixel is nearest to
+        colours = np.array(list(SEGMENTATION_COLOURS.values()), float)
+        return int(np.argmin(np.linalg.norm(colours - px.astype(float), axis=1)))
+
+    assert hue(out[0, 1]) == 0  # marked vehicle: yellow
+    assert hue(out[0, 3]) == 1  # vehicle not marked: green
+    assert hue(out[5, 2]) == 2  # marked, no vehicle: red
+    assert out[7, 7].tolist() == [60, 60, 60]  # the image, dimmed
+    assert out[1, 9].tolist() == [24, 24, 24]  # outside the area: darker, not coloured
