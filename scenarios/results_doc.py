@@ -36,6 +36,8 @@ DETECTION_COLUMNS = (
     ("tracking.hota", "HOTA", "{:.2f}"),
     ("localization.median_error_m", "median position error [m]", "{:.2f}"),
     ("localization.centre_median_error_m", "median box-centre error [m]", "{:.2f}"),
+    ("surround.segmentation.pixel_recall", "mask pixel recall", "{:.2f}"),
+    ("surround.segmentation.pixel_precision", "mask pixel precision", "{:.2f}"),
 )
 
 
