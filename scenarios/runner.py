@@ -4,8 +4,10 @@ track vehicles, and measure everything against ground truth.
 Writes into ``out/``: ``drive/`` (the render, see sim.drive), ``egomotion.csv``,
 ``tracks.csv``, ``tracks.mot.txt`` (the tracks with a box as MOTChallenge rows,
 `scenarios.mot`; none when no track has a box), ``ego_error.png``, ``tracks.png``,
-``surround.png`` (a still of the side-by-side panels), ``analysis.mp4`` (the
-side-by-side video), ``report.html`` and ``metrics.json`` (written last).
+``surround.png`` (a still of the side-by-side panels), ``segmentation.png`` (the
+built-in detectors' motion mask of that frame against the vehicles' true pixels,
+`scenarios.segmentation`), ``analysis.mp4`` (the side-by-side video), ``report.html``
+and ``metrics.json`` (written last).
 """
 
 from __future__ import annotations
