@@ -513,7 +513,8 @@ def _bearing_deg(xy: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(xy[:, 1], xy[:, 0]))
 
 
-def _ratio(num: int, den: int) -> float:
+def ratio(num: int, den: int) -> float:
+    """num / den, NaN when den is 0 (nothing to count)."""
     return float(num / den) if den else NAN
 
 
@@ -522,7 +523,7 @@ BAND_NAMES = [
 ]
 
 
-def _band_labels(xy: np.ndarray) -> np.ndarray:
+def band_labels(xy: np.ndarray) -> np.ndarray:
     """(N,) range band name of points (N, 2) ("" beyond the bands)."""
     i = np.digitize(_range_m(xy), RANGE_BANDS_M) - 1
     names = np.array([*BAND_NAMES, ""], dtype=object)
@@ -544,7 +545,7 @@ def _bins(placed: _Placed, names: Sequence[str], label_of) -> dict:
         n, m = int(g.sum()), int((g & placed.found).sum())
         hn, hm = int(h.sum()), int((h & placed.matched).sum())
         out[name] = {"gt_count": n, "matched": m, "hyp_count": hn, "hyp_matched": hm}
-        out[name] |= {"recall": _ratio(m, n), "precision": _ratio(hm, hn)}
+        out[name] |= {"recall": ratio(m, n), "precision": ratio(hm, hn)}
     return out
 
 
@@ -567,7 +568,7 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
         sel = classes == name
         n, m = int(sel.sum()), int((sel & placed.found).sum())
         if name != "unknown" or n:
-            motion[name] = {"gt_count": n, "matched": m, "recall": _ratio(m, n)}
+            motion[name] = {"gt_count": n, "matched": m, "recall": ratio(m, n)}
     ego = {}
     for state, moving in (("moving", True), ("stopped", False)):
         sub = [f for f in frames if f.ego_moving == moving]
@@ -577,7 +578,7 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
             **{key: m[key] for key in ("detection", "tracking", "localization")},
         }
     return {
-        "range_bands": _bins(placed, BAND_NAMES, _band_labels),
+        "range_bands": _bins(placed, BAND_NAMES, band_labels),
         "sectors": _bins(placed, SECTORS, _sector_labels),
         "motion": motion,
         "ego_state": ego,

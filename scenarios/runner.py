@@ -214,8 +214,7 @@ def run_scenario(
                 continue
             gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
             if audit is not None:
-                ranges = {g.id: _polygon_distance(np.zeros(2), g.footprint_xy) for g in gt_set}
-                audit.add(sf.detection.motion_mask, ids, ranges)
+                audit.add(sf.detection.motion_mask, ids, gt_set)
                 if k == still_k:
                     write_png(
                         out_dir / "segmentation.png",

@@ -7,7 +7,8 @@ mask or after it:
 
 - **pixel recall**: of the pixels that see a vehicle of the evaluation set (visible,
   within range: `scenarios.runner.gt_evaluation_set`), the share the mask marks, overall
-  and by the vehicle's range band (`RANGE_BANDS_M`, the range of its footprint);
+  and by the vehicle's range band (placed as `scenarios.detection_metrics.breakdown`
+  places it: its footprint point nearest the camera);
 - **pixel precision**: of the marked pixels, the share that see a vehicle (any vehicle:
   one beyond the range is not a false mark).
 
@@ -20,36 +21,37 @@ found by anything after the mask.
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 
 import numpy as np
 
-from scenarios.detection_metrics import RANGE_BANDS_M
-
-
-def _band_names(edges: tuple[float, ...]) -> list[str]:
-    return [f"{lo:g}-{hi:g} m" for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
+from scenarios.detection_metrics import (
+    BAND_NAMES,
+    GtVehicle,
+    band_labels,
+    nearest_footprint_point,
+    ratio,
+)
 
 
 class SegmentationAudit:
     """Counts of marked and vehicle pixels, frame by frame (`add`), and their shares
     (`result`)."""
 
-    def __init__(self, area: np.ndarray, bands_m: tuple[float, ...] = RANGE_BANDS_M) -> None:
-        """area: (H, W) bool, the pixels the mask decides; bands_m: range band edges [m]."""
+    def __init__(self, area: np.ndarray) -> None:
+        """area: (H, W) bool, the pixels the mask decides."""
         self.area = np.asarray(area, bool)
-        self.bands_m = tuple(float(b) for b in bands_m)
-        nb = len(self.bands_m) - 1
+        nb = len(BAND_NAMES)
         self.vehicle_px = np.zeros(nb, np.int64)  # pixels of evaluated vehicles, per band
         self.marked_vehicle_px = np.zeros(nb, np.int64)  # ... of them marked
         self.marked_px = 0  # marked pixels
         self.marked_on_vehicles_px = 0  # marked pixels that see any vehicle
         self.frames = 0
 
-    def add(self, mask: np.ndarray, ids: np.ndarray, ranges_m: dict[int, float]) -> None:
+    def add(self, mask: np.ndarray, ids: np.ndarray, vehicles: Sequence[GtVehicle]) -> None:
         """One frame. mask: (H, W) bool, the detector's motion mask at full resolution;
         ids: (H, W) int, the vehicle id each pixel sees (< 1: none or the ego car);
-        ranges_m: id -> range [m] of the evaluated vehicles (the evaluation set)."""
+        vehicles: the frame's evaluation set."""
         mask = np.asarray(mask, bool)
         ids = np.asarray(ids)
         if mask.shape != self.area.shape or ids.shape != self.area.shape:
@@ -61,42 +63,32 @@ class SegmentationAudit:
         self.marked_px += int(marked.sum())
         self.marked_on_vehicles_px += int((marked & (ids > 0)).sum())
         self.frames += 1
-        if not ranges_m:
+        if not vehicles:
             return
+        names = band_labels(np.array([nearest_footprint_point(v.footprint_xy) for v in vehicles]))
         seen = ids[self.area]
         hit = marked[self.area]
-        top = int(max(int(seen.max(initial=0)), max(ranges_m))) + 1
+        top = max(int(seen.max(initial=0)), max(v.id for v in vehicles)) + 1
         band_of_id = np.full(top, -1, np.int64)  # id -> range band (-1: not evaluated)
-        for vid, r in ranges_m.items():
-            b = int(np.searchsorted(self.bands_m, r, side="right")) - 1
-            if 0 <= b < len(self.vehicle_px):
-                band_of_id[vid] = b
-        band = band_of_id[np.clip(seen, 0, top - 1)]
-        band[seen < 1] = -1
-        nb = len(self.vehicle_px)
-        self.vehicle_px += np.bincount(band[band >= 0], minlength=nb)[:nb]
-        self.marked_vehicle_px += np.bincount(band[(band >= 0) & hit], minlength=nb)[:nb]
+        for v, name in zip(vehicles, names, strict=True):
+            if name:
+                band_of_id[v.id] = BAND_NAMES.index(name)
+        band = np.where(seen > 0, band_of_id[np.clip(seen, 0, top - 1)], -1)
+        nb = len(BAND_NAMES)
+        self.vehicle_px += np.bincount(band[band >= 0], minlength=nb)
+        self.marked_vehicle_px += np.bincount(band[(band >= 0) & hit], minlength=nb)
 
     def result(self) -> dict:
         """{"pixel_recall", "pixel_precision", "vehicle_px", "marked_px", "frames",
         "range_bands": {band: {"pixel_recall", "vehicle_px"}}}; a share is NaN without
         pixels to count."""
-
-        def share(num: int, den: int) -> float:
-            return float(num / den) if den else math.nan
-
         bands = {
-            name: {
-                "pixel_recall": share(int(m), int(v)),
-                "vehicle_px": int(v),
-            }
-            for name, m, v in zip(
-                _band_names(self.bands_m), self.marked_vehicle_px, self.vehicle_px, strict=True
-            )
+            name: {"pixel_recall": ratio(int(m), int(v)), "vehicle_px": int(v)}
+            for name, m, v in zip(BAND_NAMES, self.marked_vehicle_px, self.vehicle_px, strict=True)
         }
         return {
-            "pixel_recall": share(int(self.marked_vehicle_px.sum()), int(self.vehicle_px.sum())),
-            "pixel_precision": share(self.marked_on_vehicles_px, self.marked_px),
+            "pixel_recall": ratio(int(self.marked_vehicle_px.sum()), int(self.vehicle_px.sum())),
+            "pixel_precision": ratio(self.marked_on_vehicles_px, self.marked_px),
             "vehicle_px": int(self.vehicle_px.sum()),
             "marked_px": int(self.marked_px),
             "frames": self.frames,

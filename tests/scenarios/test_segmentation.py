@@ -5,8 +5,15 @@ import math
 import numpy as np
 import pytest
 
+from scenarios.detection_metrics import GtVehicle
 from scenarios.segmentation import SegmentationAudit
 from scenarios.visualize import SEGMENTATION_COLOURS, segmentation_picture
+
+
+def _ahead(vid: int, range_m: float) -> GtVehicle:
+    """Vehicle vid, 2 x 2 m, whose footprint's nearest point is range_m ahead."""
+    x = np.array([0.0, 2.0, 2.0, 0.0]) + range_m
+    return GtVehicle(vid, np.column_stack([x, [-1.0, -1.0, 1.0, 1.0]]))
 
 
 def _frame() -> tuple[np.ndarray, np.ndarray]:
@@ -26,7 +33,7 @@ def test_shares_count_evaluated_vehicles_for_recall_and_any_vehicle_for_precisio
     mask[5, :4] = True  # 4 pixels of road
     mask[9, :1] = True  # 1 pixel of the ego car: not a vehicle
     audit = SegmentationAudit(area)
-    audit.add(mask, ids, {3: 7.0})
+    audit.add(mask, ids, [_ahead(3, 7.0)])
     r = audit.result()
     assert r["pixel_recall"] == pytest.approx(2 / 4)
     assert r["pixel_precision"] == pytest.approx((2 + 3) / (2 + 3 + 4 + 1))
@@ -41,8 +48,8 @@ def test_the_true_mask_scores_one_and_pixels_outside_the_area_do_not_count():
     area[:, 8:] = False
     ids[0, 8:] = 3  # vehicle 3 also outside the area
     audit = SegmentationAudit(area)
-    audit.add(ids > 0, ids, {3: 2.0, 5: 12.0})
-    audit.add(ids > 0, ids, {3: 2.0, 5: 12.0})
+    audit.add(ids > 0, ids, [_ahead(3, 2.0), _ahead(5, 12.0)])
+    audit.add(ids > 0, ids, [_ahead(3, 2.0), _ahead(5, 12.0)])
     r = audit.result()
     assert r["pixel_recall"] == 1.0 and r["pixel_precision"] == 1.0
     assert r["range_bands"]["0-5 m"]["vehicle_px"] == 2 * 4
@@ -53,11 +60,11 @@ def test_the_true_mask_scores_one_and_pixels_outside_the_area_do_not_count():
 def test_nothing_marked_has_no_precision_and_a_bad_shape_is_named():
     ids, area = _frame()
     audit = SegmentationAudit(area)
-    audit.add(np.zeros_like(area), ids, {})
+    audit.add(np.zeros_like(area), ids, [])
     r = audit.result()
     assert math.isnan(r["pixel_precision"]) and math.isnan(r["pixel_recall"])
     with pytest.raises(ValueError, match=r"mask \(5, 5\)"):
-        audit.add(np.zeros((5, 5), bool), ids, {})
+        audit.add(np.zeros((5, 5), bool), ids, [])
 
 
 def test_the_audit_picture_colours_each_kind_of_pixel():
