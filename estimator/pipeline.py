@@ -12,7 +12,7 @@ import csv
 import io as _io
 import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,6 +80,7 @@ def estimate_frames(
     keep_images: bool = False,
     road_masks: Iterable[np.ndarray] | None = None,
     n_frames: int | None = None,
+    on_frame: Callable[[int, float, np.ndarray, object], None] | None = None,
     **config,
 ) -> EstimateRun:
     """Step the named estimator over frames; returns every per-frame record.
@@ -90,6 +91,8 @@ def estimate_frames(
     number of times, when they have a length).
     road_masks: optional (H, W) bool road mask per frame (`estimator.recording.
     iter_road_masks`); there must be one for every frame.
+    on_frame: called with (k, t_s, image, record) after each frame is estimated (e.g. the
+    surround analysis of a recording); its time is not the estimator's.
     """
     from estimator.egomotion.baselines import make_estimator
 
@@ -125,5 +128,7 @@ def estimate_frames(
             if not keep_images and hasattr(rec, "compensated"):
                 rec.compensated = None
             records.append(rec)
+            if on_frame is not None:
+                on_frame(k, t_k, img, rec)
     ms = 1000.0 * float(np.median(times[1:])) if len(times) > 1 else float("nan")
     return EstimateRun(records, ms)

@@ -318,8 +318,20 @@ def estimate(
         help="estimator setting KEY=VALUE (repeatable; dotted for nested, e.g. "
         "road_appearance=true, filter.A_tau_s=0.5; values in YAML)",
     ),
+    surround: bool = typer.Option(
+        True, help="also detect and track the vehicles around the car (section 5)"
+    ),
+    detector: str = typer.Option(
+        "hypotheses",
+        help="surround detector: hypotheses | paper (section 5 as written) | a plug-in "
+        "package.module:ClassName",
+    ),
+    write_video: bool = typer.Option(
+        True, "--video/--no-video", help="write analysis.mp4 (the side-by-side panels)"
+    ),
 ) -> None:
-    """Estimate ego-motion of any recording; writes OUT/egomotion.csv."""
+    """Estimate ego-motion of any recording, and detect and track the vehicles around the
+    car; writes OUT/egomotion.csv, OUT/tracks.csv and pictures."""
     from estimator.camera.files import load_camera
     from estimator.egomotion.baselines import check_estimator
     from estimator.pipeline import estimate_frames, write_egomotion_csv
@@ -333,14 +345,19 @@ def estimate(
         read_timestamps_csv,
         video_fps,
     )
+    from estimator.surround.plugin import check_detector, make_surround
 
+    recorder = None
     try:
         check_estimator(estimator)  # the cheap inputs first
+        if surround:
+            check_detector(detector)
         given_times = frame_times(fps) if fps is not None else None
         config = parse_settings(settings)
         cam, mount = load_camera(camera)
         can_track = read_can_csv(can)
         n_frames = count_frames(video)
+        rate = None
         if timestamps is not None:
             times = read_timestamps_csv(timestamps)
         else:
@@ -349,6 +366,19 @@ def estimate(
                 raise RecordingError(f"{video}: no frame rate known: give --fps or --timestamps")
             # one per frame, however many the recording has
             times = given_times if given_times is not None else frame_times(rate)
+        if surround:
+            from estimator.surround.detection import DetectorConfig
+            from scenarios.surround_outputs import SurroundRecorder
+
+            recorder = SurroundRecorder(
+                make_surround(detector, cam, mount, DetectorConfig()),
+                cam,
+                mount,
+                out,
+                fps=_frame_rate(fps, rate, times),
+                still_k=max(1, n_frames * 2 // 3) if n_frames else 1,
+                video=write_video,
+            )
         run = estimate_frames(
             iter_frames(video),
             times,
@@ -359,15 +389,40 @@ def estimate(
             progress=True,
             road_masks=iter_road_masks(road_masks) if road_masks is not None else None,
             n_frames=n_frames,
+            on_frame=recorder.step if recorder is not None else None,
             **config,
         )
         out.mkdir(parents=True, exist_ok=True)
         write_egomotion_csv(out / "egomotion.csv", run.records, mount)
+        if recorder is not None:
+            recorder.finish(title=f"{Path(video).name} - {estimator}")
     except (RecordingError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
+    finally:
+        if recorder is not None:
+            recorder.close()
     console.print(
         f"{len(run.records)} frames, {run.ms_per_frame:.1f} ms/frame -> {out}/egomotion.csv"
     )
+    if recorder is not None:
+        console.print(
+            f"{recorder.n_tracks} vehicle tracks, {recorder.ms_per_frame:.1f} ms/frame "
+            f"-> {out}/tracks.csv, {out}/surround.png"
+            + (f", {out}/analysis.mp4" if write_video else "")
+        )
+
+
+def _frame_rate(fps: float | None, rate: float | None, times) -> float:
+    """Frames per second of a recording for its analysis video: the given rate, the
+    video's, or the median step of its timestamps."""
+    if fps is not None:
+        return float(fps)
+    if rate is not None:
+        return float(rate)
+    import numpy as np
+
+    steps = np.diff(np.asarray(times, float))
+    return 1.0 / float(np.median(steps)) if len(steps) else 10.0
 
 
 def parse_settings(pairs: list[str]) -> dict:

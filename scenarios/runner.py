@@ -12,10 +12,7 @@ and ``metrics.json`` (written last).
 
 from __future__ import annotations
 
-import csv
-import io as _io
 import json
-import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -25,7 +22,7 @@ import numpy as np
 from estimator.camera.files import load_camera
 from estimator.egomotion.baselines import check_estimator, make_estimator
 from estimator.egomotion.homography import homography, make_state
-from estimator.fileio import atomic_write, write_json, write_png, write_text
+from estimator.fileio import write_json, write_png
 from estimator.geometry import rot_z
 from estimator.pipeline import write_egomotion_csv
 from estimator.progress import track
@@ -63,6 +60,13 @@ from scenarios.point_audit import (
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from scenarios.segmentation import SegmentationAudit
+from scenarios.surround_outputs import (
+    VideoWriter,
+    box_centres,
+    frame_track_rows,
+    panels,
+    write_tracks_csv,
+)
 from sim.drive import load_groundtruth, render_drive
 
 VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
@@ -179,7 +183,7 @@ def run_scenario(
     still_image = None
     records, track_rows, eval_det = [], [], []
     t_est, t_det = [], []
-    writer = _VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
+    writer = VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
     still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
     frames = iter_frames(drive_dir / "frames")
     try:
@@ -225,18 +229,10 @@ def run_scenario(
             moving = gt[k]["ego"]["speed_mps"] > EGO_MOVING_MPS
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
             det_boxes = [d.box for d in sf.detection.detections]
-            eval_det.append(EvalFrame(gt_set, dets, t, moving, _centres(det_boxes)))
-            for tr in sf.tracks:
-                box = surround.track_box(tr)
-                P = tr.P
-                track_rows.append(
-                    (k, t, tr.id, *(float(v) for v in tr.x[:4]))
-                    + (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
-                    + (float(P[2, 2]), float(P[2, 3]), float(P[3, 3]))
-                    + _box_fields(box)
-                )
+            eval_det.append(EvalFrame(gt_set, dets, t, moving, box_centres(det_boxes)))
+            track_rows += frame_track_rows(k, t, sf.tracks, surround)
             if writer is not None or k == still_k:
-                panel = _panels(
+                panel = panels(
                     image,
                     rec,
                     sf,
@@ -253,7 +249,7 @@ def run_scenario(
         if writer is not None:
             writer.close()
     write_egomotion_csv(out_dir / "egomotion.csv", records, mount)
-    _write_tracks_csv(out_dir / "tracks.csv", track_rows)
+    write_tracks_csv(out_dir / "tracks.csv", track_rows)
     sensor = scenario.sensor
     series = ego_series(
         read_egomotion_csv(out_dir / "egomotion.csv"),
@@ -338,70 +334,3 @@ def _point_pull(pull: PullMap, series: dict, png: Path, image) -> dict:
 
 def _median_ms(ts: list[float]) -> float:
     return 1000.0 * float(np.median(ts)) if ts else float("nan")
-
-
-def _panels(image, rec, sf, camera, mount, surround: SurroundAnalyzer, gt_xy) -> np.ndarray:
-    a = viz.motion_panel(image, rec, camera, mount.K0)
-    c = viz.difference_panel(sf.detection.normalized_difference, surround.detector.valid)
-    d = viz.detection_panel(image, sf)
-    e = viz.surround_panel(image, surround.detector.plan, sf.tracks, gt_xy)
-    return np.concatenate([a, c, d, e], axis=1)
-
-
-# tracks.csv: position [m] and ground velocity [m/s] in the ego road frame, and their
-# covariances (the Kalman filter's P: position [m^2], velocity [(m/s)^2])
-TRACKS_CSV_COLUMNS = (
-    "frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps",
-    "var_x_m2", "cov_xy_m2", "var_y_m2", "var_vx_m2ps2", "cov_vxvy_m2ps2", "var_vy_m2ps2",
-    "box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m",
-)  # fmt: skip
-
-
-def _box_fields(box) -> tuple[float, float, float, float, float]:
-    """(x, y, yaw, length, width) of a `Box`; NaN for None."""
-    if box is None:
-        return (math.nan,) * 5
-    return (box.x_m, box.y_m, box.yaw_rad, box.length_m, box.width_m)
-
-
-def _centres(boxes: list) -> list[tuple[float, float]]:
-    """Box centres (x, y) [m], NaN where a hypothesis has no box."""
-    return [_box_fields(b)[:2] for b in boxes]
-
-
-def _write_tracks_csv(path: Path, rows: list[tuple]) -> None:
-    buf = _io.StringIO()
-    w = csv.writer(buf)
-    w.writerow(TRACKS_CSV_COLUMNS)
-    for r in rows:
-        w.writerow(
-            [r[0], f"{r[1]:.4f}", r[2]]
-            + [f"{v:.3f}" for v in r[3:7]]
-            + [f"{v:.4g}" for v in r[7:13]]
-            + [f"{v:.3f}" for v in r[13:18]]
-        )
-    write_text(path, buf.getvalue())
-
-
-class _VideoWriter:
-    """mp4 written to a temp name and renamed on close (never half-written)."""
-
-    def __init__(self, path: Path, fps: float) -> None:
-        import imageio.v2 as imageio
-
-        self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.stem}.partial.mp4")
-        self._w = imageio.get_writer(
-            self.tmp, fps=fps, codec="libx264", quality=7, macro_block_size=16, format="FFMPEG"
-        )
-        self.n = 0
-
-    def append(self, frame: np.ndarray) -> None:
-        self._w.append_data(frame)
-        self.n += 1
-
-    def close(self) -> None:
-        self._w.close()
-        if self.n:
-            atomic_write(self.path, lambda p: self.tmp.replace(p), suffix=".mp4")
-        self.tmp.unlink(missing_ok=True)

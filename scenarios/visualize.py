@@ -159,7 +159,8 @@ def surround_panel(
             1,
             cv2.LINE_AA,
         )
-    return _label(_fit(top), "(e) surround map: tracks (red), truth (green)")
+    title = "(e) surround map: tracks (red)" + (", truth (green)" if gt_xy is not None else "")
+    return _label(_fit(top), title)
 
 
 def plot_tracks(rows: list[tuple], path: Path, title: str = "") -> None:

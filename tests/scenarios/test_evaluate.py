@@ -74,6 +74,48 @@ def test_scoring_the_runs_own_files_gives_its_metrics(run_dir: Path, tmp_path: P
         assert (tmp_path / name).stat().st_size > 0, name
 
 
+def _estimate(drive: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    """`omnibench estimate` on a rendered drive's frames, as on a recording."""
+    cmd = [
+        sys.executable, "-m", "scenarios", "estimate", str(drive / "frames"),
+        "--camera", str(drive / "camera.yaml"), "--can", str(drive / "can.csv"),
+        "--timestamps", str(drive / "timestamps.csv"), "--out", str(out), *extra,
+    ]  # fmt: skip
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+
+
+def test_a_recordings_surround_analysis_is_the_runs(run_dir: Path, tmp_path: Path):
+    """`omnibench estimate` on the drive's frames, CAN and timestamps (no ground truth)
+    writes the run's egomotion.csv and tracks.csv byte for byte, the pictures beside them,
+    and the tracks score as the run's."""
+    out = tmp_path / "rec"
+    proc = _estimate(run_dir / "drive", out, "--no-video")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for name in ("egomotion.csv", "tracks.csv"):
+        assert (out / name).read_bytes() == (run_dir / name).read_bytes(), name
+    assert len({row["track_id"] for row in csv.DictReader(open(out / "tracks.csv"))}) >= 1
+    for name in ("tracks.png", "surround.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert not (out / "analysis.mp4").exists()  # --no-video
+    assert "vehicle tracks" in proc.stdout + proc.stderr
+    m = evaluate_drive(run_dir / "drive", tmp_path / "score", tracks=out / "tracks.csv")
+    ran = json.loads((run_dir / "metrics.json").read_text())
+    assert m["tracking"]["mota"] == ran["tracking"]["mota"]
+
+
+def test_a_recordings_analysis_without_surround_or_with_a_bad_detector(
+    run_dir: Path, tmp_path: Path
+):
+    """--no-surround: the ego-motion only; an unknown detector is named before any frame
+    is read, and nothing is written."""
+    proc = _estimate(run_dir / "drive", tmp_path / "ego", "--no-surround")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "ego").iterdir()) == ["egomotion.csv"]
+    bad = _estimate(run_dir / "drive", tmp_path / "bad", "--detector", "nosuch")
+    assert bad.returncode == 2 and "nosuch" in bad.stderr
+    assert not (tmp_path / "bad").exists()
+
+
 def test_tracks_made_from_the_truth_score_one(run_dir: Path, tmp_path: Path):
     """The evaluation set's vehicles at their footprint centres, one track per vehicle:
     recall, precision, MOTA, IDF1 and box HOTA 1.0, box-centre error 0."""
