@@ -331,7 +331,7 @@ def estimate(
     ),
 ) -> None:
     """Estimate ego-motion of any recording, and detect and track the vehicles around the
-    car; writes OUT/egomotion.csv, OUT/tracks.csv and pictures."""
+    car; writes OUT/egomotion.csv, OUT/tracks.csv, pictures and OUT/report.html."""
     from estimator.camera.files import load_camera
     from estimator.egomotion.baselines import check_estimator
     from estimator.pipeline import estimate_frames, write_egomotion_csv
@@ -372,6 +372,7 @@ def estimate(
 
             recorder = SurroundRecorder(
                 make_surround(detector, cam, mount, DetectorConfig()),
+                detector,
                 cam,
                 mount,
                 out,
@@ -396,6 +397,7 @@ def estimate(
         write_egomotion_csv(out / "egomotion.csv", run.records, mount)
         if recorder is not None:
             recorder.finish(title=f"{Path(video).name} - {estimator}")
+        _recording_report(out, str(video), camera, estimator, run, recorder, can_track)
     except (RecordingError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     finally:
@@ -410,6 +412,38 @@ def estimate(
             f"-> {out}/tracks.csv, {out}/surround.png"
             + (f", {out}/analysis.mp4" if write_video else "")
         )
+    console.print(f"report: {out}/report.html")
+
+
+def _recording_report(
+    out: Path, name: str, camera: str, estimator: str, run, recorder, can_track
+) -> None:
+    """egomotion.png and report.html of a recording's analysis in out."""
+    import numpy as np
+
+    from scenarios.metrics import plot_egomotion, read_egomotion_csv
+    from scenarios.report import write_recording_report
+
+    ego = read_egomotion_csv(out / "egomotion.csv")
+    can_at = np.array([can_track.at(t) for t in ego["t_s"]])
+    known = np.isfinite(can_at)
+    plot_egomotion(ego, can_at, out / "egomotion.png", title=f"{Path(name).name} - {estimator}")
+    summary = {
+        "recording": name,
+        "camera": camera,
+        "estimator": estimator,
+        "frames": len(run.records),
+        "duration_s": float(ego["t_s"][-1] - ego["t_s"][0]) if len(ego["t_s"]) else 0.0,
+        "frames_images_not_used": int(np.sum(ego["degraded"] > 0)),
+        "median_speed_mps": float(np.nanmedian(ego["speed_mps"])),
+        "median_can_speed_mps": float(np.median(can_at[known])) if known.any() else math.nan,
+        "estimate_ms_per_frame": run.ms_per_frame,
+    }
+    if recorder is not None:
+        summary["detector"] = recorder.name
+        summary["vehicle_tracks"] = recorder.n_tracks
+        summary["detect_track_ms_per_frame"] = recorder.ms_per_frame
+    write_recording_report(out, summary)
 
 
 def _frame_rate(fps: float | None, rate: float | None, times) -> float:

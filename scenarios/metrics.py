@@ -236,3 +236,37 @@ def plot_ego_errors(series: dict, path: Path, title: str = "") -> None:
     fig.tight_layout()
     atomic_write(path, lambda p: fig.savefig(p, dpi=90), suffix=".png")
     plt.close(fig)
+
+
+def plot_egomotion(
+    ego: dict[str, np.ndarray], can_speed_mps: np.ndarray, path: Path, title: str = ""
+) -> None:
+    """A recording's estimate against time (PNG): forward speed beside the CAN speed and
+    yaw rate, frames whose images could not be used marked.
+
+    ego: `read_egomotion_csv` columns; can_speed_mps: (N,) the CAN speed at each frame's
+    time (NaN where none)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from estimator.fileio import atomic_write
+
+    t = ego["t_s"]
+    bad = ego["degraded"] > 0
+    fig, ax = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+    ax[0].plot(t, can_speed_mps, "-", color="tab:orange", lw=1, label="CAN")
+    ax[0].plot(t, ego["speed_mps"], "-", color="tab:blue", lw=1.2, label="estimate")
+    ax[0].set_ylabel("forward speed [m/s]")
+    ax[1].plot(t, ego["yaw_rate_dps"], "-", color="tab:blue", lw=1.2, label="estimate")
+    ax[1].set_ylabel("yaw rate [deg/s]")
+    ax[1].set_xlabel("time [s]")
+    for a, col in ((ax[0], "speed_mps"), (ax[1], "yaw_rate_dps")):
+        if bad.any():
+            a.plot(t[bad], ego[col][bad], "x", color="tab:red", ms=5, label="images not used")
+        a.legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    atomic_write(path, lambda p: fig.savefig(p, dpi=90), suffix=".png")
+    plt.close(fig)

@@ -1,4 +1,5 @@
-"""A static HTML page for one run: metrics, pictures and links to the videos.
+"""Static HTML pages: one run's metrics, pictures and links to the videos; a recording's
+analysis (`omnibench estimate`).
 
 It opens from disk (relative links, no scripts, no network).
 """
@@ -131,6 +132,34 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
         f"<!doctype html><html><head><meta charset='utf-8'><title>omnibench "
         f"{html.escape(str(metrics.get('scenario')))}</title><style>{_CSS}</style></head>"
         f"<body>{''.join(parts)}</body></html>\n"
+    )
+    path = out_dir / "report.html"
+    write_text(path, page)
+    return path
+
+
+def write_recording_report(out_dir: Path, summary: dict) -> Path:
+    """``out_dir/report.html`` for the analysis of a recording (`omnibench estimate`):
+    the summary's figures, the pictures and links to the files that exist."""
+    out_dir = Path(out_dir)
+    name = html.escape(str(summary.get("recording")))
+    parts = [f"<h1>omnibench: {name}</h1>", f"<div class=sec>{_table(summary)}</div>"]
+    for img, caption in (
+        ("egomotion.png", "ego-motion against time, beside the CAN speed"),
+        ("surround.png", "side-by-side panels (paper Fig. 4)"),
+        ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
+    ):
+        if (out_dir / img).exists():
+            parts.append(f"<div class=sec><h2>{caption}</h2><img src='{img}' alt='{img}'></div>")
+    links = [
+        f"<a href='{v}'>{v}</a>"
+        for v in ("analysis.mp4", "egomotion.csv", "tracks.csv")
+        if (out_dir / v).exists()
+    ]
+    parts.append("<div class=sec><h2>files</h2><p>" + " · ".join(links) + "</p></div>")
+    page = (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>omnibench {name}</title>"
+        f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>\n"
     )
     path = out_dir / "report.html"
     write_text(path, page)

@@ -110,13 +110,14 @@ class SurroundRecorder:
     ``analysis.mp4`` are written on the way (video=False: no video; `close` ends it
     whatever happened).
 
-    surround: an analyzer (`estimator.surround.plugin.make_surround`); fps: the video's
-    frame rate [1/s].
+    surround: an analyzer (`estimator.surround.plugin.make_surround`) and its name; fps:
+    the video's frame rate [1/s].
     """
 
     def __init__(
         self,
         surround,
+        name: str,
         camera,
         mount,
         out_dir: Path,
@@ -124,7 +125,8 @@ class SurroundRecorder:
         still_k: int = 0,
         video: bool = True,
     ) -> None:
-        self.surround, self.camera, self.mount = surround, camera, mount
+        self.surround, self.name = surround, name
+        self.camera, self.mount = camera, mount
         self.out_dir = Path(out_dir)
         self.fps, self.video = float(fps), bool(video)
         self.still_k = int(still_k)

@@ -94,10 +94,14 @@ def test_a_recordings_surround_analysis_is_the_runs(run_dir: Path, tmp_path: Pat
     for name in ("egomotion.csv", "tracks.csv"):
         assert (out / name).read_bytes() == (run_dir / name).read_bytes(), name
     assert len({row["track_id"] for row in csv.DictReader(open(out / "tracks.csv"))}) >= 1
-    for name in ("tracks.png", "surround.png"):
+    for name in ("tracks.png", "surround.png", "egomotion.png"):
         assert (out / name).stat().st_size > 0, name
     assert not (out / "analysis.mp4").exists()  # --no-video
     assert "vehicle tracks" in proc.stdout + proc.stderr
+    page = (out / "report.html").read_text()
+    n_tracks = len({row["track_id"] for row in csv.DictReader(open(out / "tracks.csv"))})
+    assert f"<th>vehicle_tracks</th><td>{n_tracks}</td>" in page
+    assert "<th>frames</th><td>20</td>" in page and "src='surround.png'" in page
     m = evaluate_drive(run_dir / "drive", tmp_path / "score", tracks=out / "tracks.csv")
     ran = json.loads((run_dir / "metrics.json").read_text())
     assert m["tracking"]["mota"] == ran["tracking"]["mota"]
@@ -106,11 +110,13 @@ def test_a_recordings_surround_analysis_is_the_runs(run_dir: Path, tmp_path: Pat
 def test_a_recordings_analysis_without_surround_or_with_a_bad_detector(
     run_dir: Path, tmp_path: Path
 ):
-    """--no-surround: the ego-motion only; an unknown detector is named before any frame
-    is read, and nothing is written."""
+    """--no-surround: the ego-motion only (its file, picture and page); an unknown detector
+    is named before any frame is read, and nothing is written."""
     proc = _estimate(run_dir / "drive", tmp_path / "ego", "--no-surround")
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert sorted(p.name for p in (tmp_path / "ego").iterdir()) == ["egomotion.csv"]
+    names = sorted(p.name for p in (tmp_path / "ego").iterdir())
+    assert names == ["egomotion.csv", "egomotion.png", "report.html"]
+    assert "vehicle_tracks" not in (tmp_path / "ego" / "report.html").read_text()
     bad = _estimate(run_dir / "drive", tmp_path / "bad", "--detector", "nosuch")
     assert bad.returncode == 2 and "nosuch" in bad.stderr
     assert not (tmp_path / "bad").exists()
