@@ -456,7 +456,7 @@ def _frame_rate(fps: float | None, rate: float | None, times) -> float:
     import numpy as np
 
     steps = np.diff(np.asarray(times, float))
-    return 1.0 / float(np.median(steps)) if len(steps) else 10.0
+    return 1.0 / float(np.median(steps)) if len(steps) else 10.0  # one frame: any rate
 
 
 def parse_settings(pairs: list[str]) -> dict:
