@@ -108,7 +108,7 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
             parts.append(f"<div class=sec><h2>{name}</h2>{_table(metrics[name])}</div>")
     if isinstance(metrics.get("surround"), dict):
         parts.append(_surround_section(metrics["surround"]))
-    for img, caption in (
+    images = (
         ("surround.png", "side-by-side panels (paper Fig. 4)"),
         ("ego_error.png", "ego-motion against ground truth and the CAN prior"),
         ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
@@ -119,18 +119,23 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
             "vehicle not marked, red: marked, no vehicle)",
         ),
         ("pull.png", "where the images pull the estimate off the truth (point_pull)"),
-    ):
+    )
+    files = ("analysis.mp4", "drive/drive.mp4", "metrics.json", "egomotion.csv", "tracks.csv")
+    return _write_page(out_dir, str(metrics.get("scenario")), parts, images, files)
+
+
+def _write_page(out_dir: Path, title: str, parts: list[str], images: tuple, files: tuple) -> Path:
+    """``out_dir/report.html``: the parts, then each (picture, caption) and a link to each
+    file, those that exist in out_dir."""
+    parts = list(parts)
+    for img, caption in images:
         if (out_dir / img).exists():
             parts.append(f"<div class=sec><h2>{caption}</h2><img src='{img}' alt='{img}'></div>")
-    links = [
-        f"<a href='{v}'>{v}</a>"
-        for v in ("analysis.mp4", "drive/drive.mp4", "metrics.json", "egomotion.csv", "tracks.csv")
-        if (out_dir / v).exists()
-    ]
+    links = [f"<a href='{v}'>{v}</a>" for v in files if (out_dir / v).exists()]
     parts.append("<div class=sec><h2>files</h2><p>" + " · ".join(links) + "</p></div>")
     page = (
         f"<!doctype html><html><head><meta charset='utf-8'><title>omnibench "
-        f"{html.escape(str(metrics.get('scenario')))}</title><style>{_CSS}</style></head>"
+        f"{html.escape(title)}</title><style>{_CSS}</style></head>"
         f"<body>{''.join(parts)}</body></html>\n"
     )
     path = out_dir / "report.html"
@@ -141,26 +146,12 @@ def write_run_report(out_dir: Path, metrics: dict) -> Path:
 def write_recording_report(out_dir: Path, summary: dict) -> Path:
     """``out_dir/report.html`` for the analysis of a recording (`omnibench estimate`):
     the summary's figures, the pictures and links to the files that exist."""
-    out_dir = Path(out_dir)
-    name = html.escape(str(summary.get("recording")))
-    parts = [f"<h1>omnibench: {name}</h1>", f"<div class=sec>{_table(summary)}</div>"]
-    for img, caption in (
+    name = str(summary.get("recording"))
+    parts = [f"<h1>omnibench: {html.escape(name)}</h1>", f"<div class=sec>{_table(summary)}</div>"]
+    images = (
         ("egomotion.png", "ego-motion against time, beside the CAN speed"),
         ("surround.png", "side-by-side panels (paper Fig. 4)"),
         ("tracks.png", "track positions against time (paper Fig. 5, 9)"),
-    ):
-        if (out_dir / img).exists():
-            parts.append(f"<div class=sec><h2>{caption}</h2><img src='{img}' alt='{img}'></div>")
-    links = [
-        f"<a href='{v}'>{v}</a>"
-        for v in ("analysis.mp4", "egomotion.csv", "tracks.csv")
-        if (out_dir / v).exists()
-    ]
-    parts.append("<div class=sec><h2>files</h2><p>" + " · ".join(links) + "</p></div>")
-    page = (
-        f"<!doctype html><html><head><meta charset='utf-8'><title>omnibench {name}</title>"
-        f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>\n"
     )
-    path = out_dir / "report.html"
-    write_text(path, page)
-    return path
+    files = ("analysis.mp4", "egomotion.csv", "tracks.csv")
+    return _write_page(Path(out_dir), name, parts, images, files)

@@ -60,13 +60,7 @@ from scenarios.point_audit import (
 from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from scenarios.segmentation import SegmentationAudit
-from scenarios.surround_outputs import (
-    VideoWriter,
-    box_centres,
-    frame_track_rows,
-    panels,
-    write_tracks_csv,
-)
+from scenarios.surround_outputs import SurroundRecorder, box_centres
 from sim.drive import load_groundtruth, render_drive
 
 VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
@@ -181,10 +175,12 @@ def run_scenario(
     unit_rays = camera_unit_rays(camera) if road_mask else None
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
-    records, track_rows, eval_det = [], [], []
-    t_est, t_det = [], []
-    writer = VideoWriter(out_dir / "analysis.mp4", scenario.fps) if video else None
+    records, eval_det, t_est = [], [], []
     still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
+    # tracks.csv, tracks.png, surround.png and analysis.mp4, as for a recording
+    recorder = SurroundRecorder(
+        surround, detector, camera, mount, out_dir, scenario.fps, still_k, video
+    )
     frames = iter_frames(drive_dir / "frames")
     try:
         for k, image in track(
@@ -199,14 +195,18 @@ def run_scenario(
             t1 = time.perf_counter()
             ids = gt_vehicle_ids(drive_dir, k) if vehicle_mask or audit is not None else None
             vmask = ids > 0 if vehicle_mask else None
-            t2 = time.perf_counter()  # the detector's time, without the truth's mask
-            sf = surround.step(
-                k, t, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps, vehicle_mask=vmask
+            gt_set, _ = gt_evaluation_set(gt[k], det_cfg.max_range_m)
+            # (the detector's time, without the truth's mask: the recorder's)
+            sf = recorder.step(
+                k,
+                t,
+                image,
+                rec,
+                vehicle_mask=vmask,
+                gt_xy=np.array([g.footprint_xy.mean(axis=0) for g in gt_set]),
             )
-            t3 = time.perf_counter()
             if k > 0:
                 t_est.append(t1 - t0)
-                t_det.append(t3 - t2)
             records.append(rec)
             truth = gt[k]["motion_from_prev"]
             if truth is not None and hasattr(est, "point_pull"):  # (None on frame 0)
@@ -216,7 +216,6 @@ def run_scenario(
                 still_image = image
             if sf is None:
                 continue
-            gt_set, gt_centres = gt_evaluation_set(gt[k], det_cfg.max_range_m)
             if audit is not None:
                 audit.add(sf.detection.motion_mask, ids, gt_set)
                 if k == still_k:
@@ -230,26 +229,10 @@ def run_scenario(
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
             det_boxes = [d.box for d in sf.detection.detections]
             eval_det.append(EvalFrame(gt_set, dets, t, moving, box_centres(det_boxes)))
-            track_rows += frame_track_rows(k, t, sf.tracks, surround)
-            if writer is not None or k == still_k:
-                panel = panels(
-                    image,
-                    rec,
-                    sf,
-                    camera,
-                    mount,
-                    surround,
-                    np.array([g.footprint_xy.mean(axis=0) for g in gt_set]),
-                )
-                if writer is not None:
-                    writer.append(panel)
-                if k == still_k:
-                    write_png(out_dir / "surround.png", panel)
+        recorder.finish(title=f"{scenario.name} - {estimator}")
     finally:
-        if writer is not None:
-            writer.close()
+        recorder.close()
     write_egomotion_csv(out_dir / "egomotion.csv", records, mount)
-    write_tracks_csv(out_dir / "tracks.csv", track_rows)
     sensor = scenario.sensor
     series = ego_series(
         read_egomotion_csv(out_dir / "egomotion.csv"),
@@ -258,7 +241,6 @@ def run_scenario(
         exposure_s=sensor.exposure_s if sensor.motion_blur else 0.0,
     )
     plot_ego_errors(series, out_dir / "ego_error.png", title=f"{scenario.name} - {estimator}")
-    viz.plot_tracks(track_rows, out_dir / "tracks.png", title=f"{scenario.name} - {estimator}")
     est_H = {
         r.frame: homography(np.asarray(r.x, float), mount.K0, r.dt_s)
         for r in records
@@ -313,7 +295,7 @@ def run_scenario(
         "timing": {
             "render_ms_per_frame": manifest.get("render_ms_per_frame"),
             "estimate_ms_per_frame": _median_ms(t_est),
-            "detect_track_ms_per_frame": _median_ms(t_det),
+            "detect_track_ms_per_frame": recorder.ms_per_frame,
         },
     }
     write_run_report(out_dir, metrics)

@@ -104,7 +104,7 @@ class VideoWriter:
 
 
 class SurroundRecorder:
-    """The surround analysis of a recording, beside its ego-motion estimate: each frame
+    """The surround analysis of a drive, beside its ego-motion estimate: each frame
     (`step`) goes through the analyzer with the estimate of that frame; `close` writes
     ``tracks.csv`` and ``tracks.png`` (`finish`), and ``surround.png`` (frame still_k) and
     ``analysis.mp4`` are written on the way (video=False: no video; `close` ends it
@@ -134,25 +134,39 @@ class SurroundRecorder:
         self.seconds: list[float] = []  # the analyzer's time per frame
         self._writer: VideoWriter | None = None  # opened at the first frame
 
-    def step(self, k: int, t_s: float, image: np.ndarray, rec) -> None:
+    def step(
+        self,
+        k: int,
+        t_s: float,
+        image: np.ndarray,
+        rec,
+        vehicle_mask: np.ndarray | None = None,
+        gt_xy: np.ndarray | None = None,
+    ):
         """Frame k at t_s [s] with the estimator's record of it (x, dt_s, speed_mps,
-        yaw_rate_rps)."""
+        yaw_rate_rps); returns the analyzer's frame (None on its first). vehicle_mask: the
+        analyzer's diagnostic input (`SurroundAnalyzer.step`); gt_xy: (N, 2) the true
+        vehicles' centres [m] drawn in the surround map, when known."""
+        masks = {"vehicle_mask": vehicle_mask} if vehicle_mask is not None else {}
         t0 = time.perf_counter()
-        sf = self.surround.step(k, t_s, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps)
+        sf = self.surround.step(
+            k, t_s, image, rec.x, rec.dt_s, rec.speed_mps, rec.yaw_rate_rps, **masks
+        )
         self.seconds.append(time.perf_counter() - t0)
         if sf is None:  # the analyzer's first frame: nothing to compare with yet
-            return
+            return None
         if self.video and self._writer is None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._writer = VideoWriter(self.out_dir / "analysis.mp4", self.fps)
         self.rows += frame_track_rows(k, t_s, sf.tracks, self.surround)
         if self._writer is not None or k == self.still_k:
-            pic = panels(image, rec, sf, self.camera, self.mount, self.surround)
+            pic = panels(image, rec, sf, self.camera, self.mount, self.surround, gt_xy)
             if self._writer is not None:
                 self._writer.append(pic)
             if k == self.still_k:
                 self.out_dir.mkdir(parents=True, exist_ok=True)
                 write_png(self.out_dir / "surround.png", pic)
+        return sf
 
     def finish(self, title: str = "") -> None:
         """Close the video and write tracks.csv and tracks.png."""
