@@ -155,13 +155,21 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
                     _fmt(median, "{:.1f}"),
                     _fmt(p90, "{:.1f}"),
                     _fmt(fps, "{:.2f}"),
+                    _fmt(r.get("cpu_ms_per_frame"), "{:.0f}"),
                     str(r.get("frames", "")),
                 ]
             )
             if r.get("stages_ms"):
                 parts = ", ".join(f"{k} {v:.0f}" for k, v in r["stages_ms"].items())
                 stages.append(f"- {what}: {parts} ms (medians by stage)")
-    heads = ["benchmark", "median [ms/frame]", "p90 [ms/frame]", "frames/s", "frames timed"]
+    heads = [
+        "benchmark",
+        "median [ms/frame]",
+        "p90 [ms/frame]",
+        "frames/s",
+        "CPU [ms/frame]",
+        "frames timed",
+    ]
     lines = ["## Speed", "", "On this machine, one `omnibench bench ... --json` each.", ""]
     lines += _table(heads, rows) + [""]
     return lines + (stages + [""] if stages else [])

@@ -51,7 +51,7 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     bench = tmp_path / "bench.json"
     bench.write_text(
         'progress...\n{"bench": "estimate", "ms_per_frame": 12.5, '
-        '"p90_ms_per_frame": 14.0, "frames": 40}\n'
+        '"p90_ms_per_frame": 14.0, "cpu_ms_per_frame": 11.6, "frames": 40}\n'
     )
     page = results_markdown([run], [bench], "omnibench results run")
     assert "`omnibench results run`" in page
@@ -60,7 +60,7 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     assert "| merge-omni-far | omni-far | direct | 3 | 150 | 1.23 | 8.00 | 0.346 | 0.055 |" in page
     assert "| 149 | 0.93 |" in page
     assert "1 jobs did not finish" in page and "boom" in page
-    assert "| estimate | 12.5 | 14.0 | 80.00 | 40 |" in page
+    assert "| estimate | 12.5 | 14.0 | 80.00 | 12 | 40 |" in page
 
 
 def test_tuning_suite_is_said_to_be_not_held_out(tmp_path):
