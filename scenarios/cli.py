@@ -554,7 +554,8 @@ def bench_detect_cmd(
     res = bench_detect(camera=camera, n_frames=frames)
     console.print(
         f"detect+track ({camera}): {res['ms_per_frame']:.1f} ms/frame median, "
-        f"{res['p90_ms_per_frame']:.1f} p90 over {res['frames']} frames on one core"
+        f"{res['p90_ms_per_frame']:.1f} p90 (CPU {res['cpu_ms_per_frame']:.1f}) over "
+        f"{res['frames']} frames on one core"
     )
     if as_json:
         print(json.dumps(res))
