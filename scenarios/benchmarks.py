@@ -16,7 +16,6 @@ returns the median and the 90th percentile of the per-frame wall-clock times
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,7 @@ import numpy as np
 from estimator.camera.files import load_camera
 from estimator.egomotion.bench import time_steps
 from estimator.fileio import read_png
+from estimator.frame_times import FrameTimes
 from estimator.surround.analyzer import SurroundAnalyzer
 from scenarios.config import load_scenario
 from sim.drive import load_groundtruth, render_drive
@@ -60,22 +60,19 @@ def bench_detect(
     images = [read_png(out / "frames" / f"{k:06d}.png") for k in range(len(gt))]
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    times, cpu = [], []
+    clock = FrameTimes()
     try:
         for k, img in enumerate(images):
             m = gt[k]["motion_from_prev"]
             x = np.r_[m["V_mps"], m["W_rps"], m["A_rad"]] if m else np.zeros(9)
             dt = m["dt_s"] if m else 0.0
-            t0, c0 = time.perf_counter(), time.process_time()
+            clock.start()
             sa.step(
                 k, gt[k]["t_s"], img, x, dt, gt[k]["ego"]["speed_mps"], gt[k]["ego"]["yaw_rate_rps"]
             )
-            if k >= 2:
-                times.append(time.perf_counter() - t0)
-                cpu.append(time.process_time() - c0)
+            clock.stop(keep=k >= 2)
     finally:
         cv2.setNumThreads(threads)
-    ms = 1000.0 * float(np.median(times))
     near = [
         sum(
             np.hypot(v["x_m"] - f["ego"]["x_m"], v["y_m"] - f["ego"]["y_m"]) < sc.detection_range_m
@@ -87,10 +84,7 @@ def bench_detect(
         "bench": "detect",
         "scenario": DETECT_BENCH_SCENARIO,
         "vehicles_in_range": float(np.mean(near)),
-        "ms_per_frame": ms,
-        "p90_ms_per_frame": 1000.0 * float(np.percentile(times, 90)),
-        "cpu_ms_per_frame": 1000.0 * float(np.median(cpu)),
-        "frames": len(times),
+        **clock.summary(),
         "width": cam.width,
         "height": cam.height,
         "camera": camera,

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
+from estimator.frame_times import FrameTimes
 from sim.drive import prepare_drive
 from sim.scenario import Scenario
 
@@ -39,27 +38,26 @@ def bench_render(
         camera=camera,
     )
     drive = prepare_drive(sc, face_px=face_px, renderer=renderer)
-    times, cpu, stages = [], [], []
+    clock, stages = FrameTimes(), []
     try:
-        t0, c0 = time.perf_counter(), time.process_time()
         for k, _ in drive.produce_many(range(total)):
+            clock.stop(keep=k >= warmup)
             if k >= warmup:
-                times.append(time.perf_counter() - t0)
-                cpu.append(time.process_time() - c0)
                 stages.append(drive.stage_seconds)
-            t0, c0 = time.perf_counter(), time.process_time()
+            clock.start()
     finally:
         drive.close()
-    ms = 1000.0 * float(np.median(times))
+    t = clock.summary()
+    ms = t["ms_per_frame"]
     names = list(stages[0])
     return {
         "renderer": renderer,
         "frames_per_s": 1000.0 / ms,
         "ms_per_frame": ms,
-        "ms_p90": 1000.0 * float(np.percentile(times, 90)),
-        "cpu_ms_per_frame": 1000.0 * float(np.median(cpu)),
+        "ms_p90": t["p90_ms_per_frame"],
+        "cpu_ms_per_frame": t["cpu_ms_per_frame"],
         "stages_ms": {n: 1000.0 * float(np.median([s.get(n, 0.0) for s in stages])) for n in names},
-        "frames": len(times),
+        "frames": t["frames"],
         "width": drive.camera.width,
         "height": drive.camera.height,
         "vehicles": len(drive.frames[0].others),

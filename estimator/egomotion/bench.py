@@ -11,7 +11,6 @@ core, the CPU time does not (it is what one dedicated core would take).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import cv2
@@ -22,6 +21,7 @@ from estimator.camera.files import load_camera
 from estimator.egomotion.direct import DirectEstimator
 from estimator.egomotion.direct_config import default_config
 from estimator.egomotion.ego_estimator import EgoMotionEstimator
+from estimator.frame_times import FrameTimes
 from estimator.synthetic import RoadTexture, drive_poses, pixel_angle_rad, render_road, to_uint8
 
 
@@ -43,26 +43,20 @@ def time_steps(
     """
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    times, cpu, errors = [], [], []
+    clock, errors = FrameTimes(), []
     try:
         with threadpool_limits(limits=1):
             blas_threads = max((p["num_threads"] for p in threadpool_info()), default=1)
             for k, img in enumerate(images):
-                t0, c0 = time.perf_counter(), time.process_time()
+                clock.start()
                 rec = est.step(img, float(t_s[k]), float(can_mps[k]))
-                dt, dc = time.perf_counter() - t0, time.process_time() - c0
+                clock.stop(keep=k > warmup)
                 if k > warmup:
-                    times.append(dt)
-                    cpu.append(dc)
                     errors.append(abs(rec.speed_mps / true_speed_mps[k] - 1.0))
     finally:
         cv2.setNumThreads(threads)
-    ms = 1000.0 * np.asarray(times)
     return {
-        "ms_per_frame": float(np.median(ms)),
-        "p90_ms_per_frame": float(np.percentile(ms, 90)),
-        "cpu_ms_per_frame": float(np.median(1000.0 * np.asarray(cpu))),
-        "frames": len(times),
+        **clock.summary(),
         "speed_error_pct": 100.0 * float(np.median(errors)),
         "blas_threads": blas_threads,
         "points": getattr(rec, "n_points", 0),

@@ -1,0 +1,35 @@
+"""Wall-clock and CPU time of the frames a benchmark times (`omnibench bench ...`)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+class FrameTimes:
+    """Per-frame wall-clock and process CPU time (all threads) between `start` and `stop`."""
+
+    def __init__(self) -> None:
+        self.wall_s: list[float] = []
+        self.cpu_s: list[float] = []
+        self.start()
+
+    def start(self) -> None:
+        self._t0, self._c0 = time.perf_counter(), time.process_time()
+
+    def stop(self, keep: bool = True) -> None:
+        """End a frame; keep its times unless it is a warm-up frame."""
+        if keep:
+            self.wall_s.append(time.perf_counter() - self._t0)
+            self.cpu_s.append(time.process_time() - self._c0)
+
+    def summary(self) -> dict:
+        """ms_per_frame and cpu_ms_per_frame (medians), p90_ms_per_frame, frames."""
+        ms = 1000.0 * np.asarray(self.wall_s)
+        return {
+            "ms_per_frame": float(np.median(ms)),
+            "p90_ms_per_frame": float(np.percentile(ms, 90)),
+            "cpu_ms_per_frame": float(np.median(1000.0 * np.asarray(self.cpu_s))),
+            "frames": len(ms),
+        }
