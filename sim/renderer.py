@@ -24,7 +24,7 @@ import numpy as np
 
 from estimator.camera.models import CameraModel
 from estimator.synthetic import pixel_angle_rad
-from sim.gl import pyrender
+from sim.gl import draw, linear_depth_m, pyrender
 
 # Face directions in camera coordinates and an "up" vector for each (GL y).
 _FACE_DIRS = {
@@ -239,6 +239,7 @@ class OmniRenderer:
         self._gl_cameras = self.lookup.gl_cameras(z_near, z_far)
         self._renderer = pyrender.OffscreenRenderer(*self.lookup.window_px)
         self._R_face = {n: face_rotation(n) for n in self.lookup.faces}
+        self._depth_lookup: tuple | None = None  # `_nearest_elements`, for `range_image`
 
     def close(self) -> None:
         self._renderer.delete()
@@ -272,9 +273,8 @@ class OmniRenderer:
                 if name in todo:
                     node.camera = self._gl_cameras[slot]
                     scene.set_pose(node, pose)
-                    self._face_cache[(id(scene), flat, name)] = self._renderer.render(
-                        scene, flags=flags
-                    )
+                    c, d = draw(self._renderer, scene, flags)
+                    self._face_cache[(id(scene), flat, name)] = (c.copy(), d.copy())
         finally:
             node.camera = self._gl_cameras[0]  # the one the scene registered
             scene.remove_node(node)
@@ -286,11 +286,15 @@ class OmniRenderer:
         flat: bool = False,
         depth: bool = False,
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Face atlas (n_faces * h, w, 3) uint8 and optionally depth (n_faces * h, w), with
-        (w, h) the faces' window (``lookup.window_px``)."""
+        """Face atlas (n_faces * h, w, 3) uint8 and optionally the depth-buffer codes
+        (n_faces * h, w) uint32 (`sim.gl.draw`; `range_image`), with (w, h) the faces'
+        window (``lookup.window_px``)."""
         node = scene.add(self._gl_cameras[0], pose=np.eye(4))
         flags = pyrender.RenderFlags.FLAT if flat else pyrender.RenderFlags.NONE
-        colors, depths = [], []
+        w, h = self.lookup.window_px
+        n = len(self.lookup.faces)
+        atlas = np.empty((n * h, w, 3), np.uint8)
+        codes = np.empty((n * h, w), np.uint32) if depth else None
         try:
             for slot, (name, pose) in enumerate(
                 zip(self.lookup.faces, self._face_poses(T_world_cam), strict=True)
@@ -301,16 +305,16 @@ class OmniRenderer:
                 else:
                     node.camera = self._gl_cameras[slot]
                     scene.set_pose(node, pose)
-                    c, d = self._renderer.render(scene, flags=flags)
+                    c, d = draw(self._renderer, scene, flags)
                     if self.cache_body_faces and name in self.lookup.body_only:
-                        self._face_cache[key] = (c, d)
-                colors.append(c)
-                depths.append(d)
+                        self._face_cache[key] = (c.copy(), d.copy())
+                atlas[slot * h : (slot + 1) * h] = c
+                if codes is not None:
+                    codes[slot * h : (slot + 1) * h] = d
         finally:
             node.camera = self._gl_cameras[0]  # the one the scene registered
             scene.remove_node(node)
-        atlas = np.concatenate(colors, axis=0)
-        return atlas, (np.concatenate(depths, axis=0) if depth else None)
+        return atlas, codes
 
     def remap_color(self, atlas: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 image by bilinear lookup into the colour atlas, which is first
@@ -331,9 +335,32 @@ class OmniRenderer:
             atlas, lk.map_x, lk.map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT
         )
 
-    def range_image(self, depth_atlas: np.ndarray) -> np.ndarray:
-        """(H, W) float32 range along each pixel's ray [m]; inf where nothing was hit."""
-        z = self.remap_nearest(depth_atlas.astype(np.float32))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rng = np.where(z > 0, z / np.maximum(self.lookup.cos_to_axis, 1e-6), np.inf)
-        return rng.astype(np.float32)
+    def range_image(self, depth_codes: np.ndarray) -> np.ndarray:
+        """(H, W) float32 range along each pixel's ray [m]; inf where nothing was hit.
+        depth_codes: `render_atlas`'s depth; only the pixels looked up are converted."""
+        if self._depth_lookup is None:
+            self._depth_lookup = self._nearest_elements(depth_codes.shape)
+        pixel, element, cos = self._depth_lookup
+        cam = self._gl_cameras[0]
+        z = linear_depth_m(depth_codes.reshape(-1)[element], cam.znear, cam.zfar)
+        out = np.full(self.lookup.map_x.shape, np.inf, np.float32)
+        out.reshape(-1)[pixel] = z / cos
+        return out
+
+    def _nearest_elements(self, atlas_shape: tuple) -> tuple[np.ndarray, ...]:
+        """The pixels that `remap_nearest` fills from an atlas (h, w), as flat indices
+        (N,), the atlas elements they read (N,) and their ``cos_to_axis`` (N,) (>= 1e-6)."""
+        n = int(np.prod(atlas_shape))
+        if n >= 1 << 24:
+            raise ValueError(f"atlas of {n} elements too large for a float32 index")
+        index = cv2.remap(
+            np.arange(n, dtype=np.float32).reshape(atlas_shape),
+            self.lookup.map_x,
+            self.lookup.map_y,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=-1.0,
+        ).reshape(-1)
+        pixel = np.flatnonzero(index >= 0)
+        cos = np.maximum(self.lookup.cos_to_axis.reshape(-1)[pixel], np.float32(1e-6))
+        return pixel, index[pixel].astype(np.int64), cos

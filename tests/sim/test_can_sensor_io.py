@@ -2,11 +2,14 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from estimator import fileio as io
 from estimator.camera.models import vignetting_gain
 from sim.can import can_at, can_messages
-from sim.sensor import SensorModel, apply_sensor, exposure_times, motion_blur
+from sim.sensor import SensorModel, apply_sensor, exposure_times, motion_blur, moving_blocks
 
 
 def test_can_bias_noise_quantisation_and_rate():
@@ -53,6 +56,38 @@ def test_vignetting_and_blur():
     out = motion_blur(img, [t * flow for t in exposure_times(1.0)])
     assert out[5, 10, 0] < 255 and out[5, 8, 0] > 0 and out[5, 5, 0] == 0
     np.testing.assert_array_equal(motion_blur(img, []), img)
+
+
+def test_motion_blur_resamples_only_what_moves_inside_the_mask():
+    """Pixels inside the mask are blurred exactly as without a mask; outside it a pixel
+    is the sharp image or its blur, and most keep the sharp image."""
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0, 255, (96, 128, 3)).astype(np.float32)
+    flow = np.zeros((96, 128, 2), np.float32)
+    flow[:, :70] = rng.uniform(-3, 3, (96, 70, 2))  # columns 70.. stand still
+    mask = np.zeros((96, 128), bool)
+    mask[10:90, 5:120] = True
+    samples = [t * flow for t in exposure_times(1.0)]
+    whole = motion_blur(img, samples)
+    masked = motion_blur(img, samples, mask)
+    kept = motion_blur(img, [0 * d for d in samples])  # the sharp image, averaged
+    np.testing.assert_array_equal(masked[mask], whole[mask])
+    sharp = np.all(masked == kept, axis=2)
+    assert np.all(sharp | np.all(masked == whole, axis=2))
+    assert sharp[~mask].mean() > 0.5
+    np.testing.assert_array_equal(masked[:, 72:], kept[:, 72:])
+    np.testing.assert_allclose(kept, img, rtol=1e-6)
+    assert not np.allclose(masked[20:80, 10:60], img[20:80, 10:60], atol=1.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(arrays(bool, st.tuples(st.integers(1, 90), st.integers(1, 90))))
+def test_moving_blocks_cover_every_moving_pixel_once(moving):
+    cover = np.zeros(moving.shape, int)
+    for rows, cols in moving_blocks(moving):
+        assert moving[rows, cols].any()
+        cover[rows, cols] += 1
+    assert cover.max(initial=0) <= 1 and np.all(cover[moving] == 1)
 
 
 @pytest.mark.parametrize("gain", [0.3, -0.3, 0.1])
