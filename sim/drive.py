@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -131,6 +131,20 @@ def scene_flow_px(
     displacement_m: world displacement (3,) of each vehicle id between a and b
     (translation only: the vehicles' own rotation is neglected).
     """
+    return scene_flows_px(camera, rays, range_m, ids, a, [(b, displacement_m)], step)[0]
+
+
+def scene_flows_px(
+    camera: CameraModel,
+    rays: np.ndarray,
+    range_m: np.ndarray,
+    ids: np.ndarray,
+    a: CameraPose,
+    moves: Sequence[tuple[CameraPose, dict[int, np.ndarray]]],
+    step: int = 4,
+) -> list[np.ndarray]:
+    """`scene_flow_px` from pose a to each (b, displacement_m) of moves, sharing the
+    scene points seen at a."""
     H, W = range_m.shape
     d = rays[::step, ::step].reshape(-1, 3).astype(np.float64)
     r = range_m[::step, ::step].reshape(-1).astype(np.float64)
@@ -138,20 +152,28 @@ def scene_flow_px(
     h, w = range_m[::step, ::step].shape
     vv, uu = np.mgrid[0:H:step, 0:W:step]
     w_a = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(np.float64)
-    R_wa, R_wb = a.T_world_actual[:3, :3], b.T_world_actual[:3, :3]
-    p_a, p_b = a.T_world_actual[:3, 3], b.T_world_actual[:3, 3]
+    R_wa, p_a = a.T_world_actual[:3, :3], a.T_world_actual[:3, 3]
     dirs_w = d @ R_wa.T
     finite = np.isfinite(r) & np.all(np.isfinite(d), axis=1)
-    P_b = dirs_w @ R_wb  # points at infinity: rotation only
     X = p_a + r[finite, None] * dirs_w[finite]
-    disp = np.zeros((len(r), 3))
-    for vid, dv in displacement_m.items():
-        disp[i == vid] = dv
-    P_b[finite] = (X + disp[finite] - p_b) @ R_wb
-    flow = camera.project(P_b) - w_a
-    flow[i == 0] = 0.0  # the ego car's body moves with the camera
-    flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0).reshape(h, w, 2)
-    return cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    i_finite = i[finite]
+    flows = []
+    for b, displacement_m in moves:
+        R_wb, p_b = b.T_world_actual[:3, :3], b.T_world_actual[:3, 3]
+        P_b = dirs_w @ R_wb  # points at infinity: rotation only
+        moved = X.copy()
+        if displacement_m:  # each vehicle's points by its displacement
+            vids = np.array(sorted(displacement_m), dtype=i.dtype)
+            table = np.array([displacement_m[v] for v in vids.tolist()], np.float64)
+            at = np.minimum(np.searchsorted(vids, i_finite), len(vids) - 1)
+            own = vids[at] == i_finite
+            moved[own] += table[at[own]]
+        P_b[finite] = (moved - p_b) @ R_wb
+        flow = camera.project(P_b) - w_a
+        flow[i == 0] = 0.0  # the ego car's body moves with the camera
+        flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0).reshape(h, w, 2)
+        flows.append(cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR))
+    return flows
 
 
 def vehicle_displacements(f_a: WorldFrame, f_b: WorldFrame) -> dict[int, np.ndarray]:
@@ -315,12 +337,20 @@ class DriveRenderer:
             # moves towards its own neighbour frame): exact to first order, the second-order
             # term over +-4 ms is below 0.001 px for a 160 px/s^2 change of the motion
             taus = exposure_times(self.sensor.exposure_s)
-            ends = {
-                tau: scene_flow_px(
-                    self.camera, self._rays, range_m, ids, pose, *self._moved(k, tau)
+            ends = dict(
+                zip(
+                    (taus.min(), taus.max()),
+                    scene_flows_px(
+                        self.camera,
+                        self._rays,
+                        range_m,
+                        ids,
+                        pose,
+                        [self._moved(k, tau) for tau in (taus.min(), taus.max())],
+                    ),
+                    strict=True,
                 )
-                for tau in (taus.min(), taus.max())
-            }
+            )
             blur = [
                 np.float32(tau / (taus.max() if tau > 0 else taus.min()))
                 * ends[taus.max() if tau > 0 else taus.min()]

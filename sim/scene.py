@@ -134,11 +134,7 @@ def _instances(
     """
     m = len(xy)
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    vs = v[None, :, :] * scale[:, None, :]
-    verts = np.empty_like(vs)
-    verts[..., 0] = c * vs[..., 0] - s * vs[..., 1] + xy[:, 0, None]
-    verts[..., 1] = s * vs[..., 0] + c * vs[..., 1] + xy[:, 1, None]
-    verts[..., 2] = vs[..., 2] + np.broadcast_to(np.asarray(z, float), (m,))[:, None]
+    verts = _posed_points(v, xy, c, s, scale, z)
     ns = n[None, :, :] / scale[:, None, :]
     ns /= np.maximum(np.sqrt(np.sum(ns * ns, axis=-1, keepdims=True)), 1e-12)
     norms = np.empty_like(ns)
@@ -147,6 +143,24 @@ def _instances(
     norms[..., 2] = ns[..., 2]
     faces = f[None, :, :] + (np.arange(m) * len(v))[:, None, None]
     return verts.reshape(-1, 3), faces.reshape(-1, 3), norms.reshape(-1, 3)
+
+
+def _posed_points(
+    v: np.ndarray,
+    xy: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+    scale: np.ndarray,
+    z: np.ndarray | float = 0.0,
+) -> np.ndarray:
+    """(M, V, 3) points v (V, 3) scaled by scale (M, 3), turned by the yaw whose cosine
+    and sine are c, s (M, 1) and moved to xy (M, 2), z."""
+    vs = v[None, :, :] * scale[:, None, :]
+    out = np.empty_like(vs)
+    out[..., 0] = c * vs[..., 0] - s * vs[..., 1] + xy[:, 0, None]
+    out[..., 1] = s * vs[..., 0] + c * vs[..., 1] + xy[:, 1, None]
+    out[..., 2] = vs[..., 2] + np.broadcast_to(np.asarray(z, float), (len(xy),))[:, None]
+    return out
 
 
 def _box(lo: Sequence[float], hi: Sequence[float]) -> tuple[np.ndarray, ...]:
@@ -703,6 +717,7 @@ def _car_template() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 
 
 _CAR = _car_template()
+_CAR_CORNERS = _CAR[0][_CAR[1]].reshape(-1, 3)  # (3F, 3) the template's triangle corners
 
 # body colours (RGB) in rough proportion to what is seen on roads
 CAR_PALETTE = np.array(
@@ -767,13 +782,18 @@ def _posed_cars(
     yaw), in one numpy operation: (M*V, 3) vertices, (M*F, 3) faces, (M*V, 3) normals
     and (M,) int64 ids of the M vehicles."""
     tv, tf, tn, _ = _CAR
-    arr = np.array(
-        [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
-        dtype=float,
-    )
+    arr = _vehicle_array(vehicles)
     scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
     verts, faces, norms = _instances(tv, tf, tn, arr[:, :2], arr[:, 2], scale)
     return verts, faces, norms, arr[:, 6].astype(np.int64)
+
+
+def _vehicle_array(vehicles: Sequence[VehicleState]) -> np.ndarray:
+    """(M, 7) x, y, yaw, length, width, height, id of the vehicles."""
+    return np.array(
+        [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
+        dtype=float,
+    )
 
 
 def _role_colors(ids: np.ndarray, roles: np.ndarray) -> np.ndarray:
@@ -824,9 +844,17 @@ def vehicle_triangles(
     if len(vehicles) == 0:
         return np.zeros((0, 3, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)
     tf, roles = _CAR[1], _CAR[3]
-    verts, faces, _, ids = _posed_cars(vehicles)
+    arr = _vehicle_array(vehicles)
+    corners = _posed_points(
+        _CAR_CORNERS,
+        arr[:, :2],
+        np.cos(arr[:, 2])[:, None],
+        np.sin(arr[:, 2])[:, None],
+        arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H]),
+    ).reshape(-1, 3, 3)
+    ids = arr[:, 6].astype(np.int64)
     albedo = _role_colors(ids, roles[tf[:, 0]])  # a face's role: its first vertex's
-    return verts[faces], albedo, np.repeat(ids, len(tf))
+    return corners, albedo, np.repeat(ids, len(tf))
 
 
 def vehicle_corners_world(v: VehicleState) -> np.ndarray:
