@@ -136,7 +136,7 @@ def set_depth_offset(mesh: pyrender.Mesh, offset: float) -> pyrender.Mesh:
 
 # Reading a face. pyrender's OffscreenRenderer.render reads the colour with glReadPixels
 # (a copy of the colour buffer) and the depth with glReadPixels, then turns every depth
-# value into a linear distance with numpy: about 15 ms of a frame's four object faces.
+# value into a linear distance with numpy: about 14 ms of a frame's four object faces.
 # With OSMesa the colour buffer is pyrender's own array, and OSMesaGetDepthBuffer gives
 # the depth buffer itself: `draw` returns both as they are, and only the pixels that a
 # camera looks up are turned into distances (`linear_depth_m`).

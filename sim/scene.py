@@ -782,18 +782,22 @@ def _posed_cars(
     yaw), in one numpy operation: (M*V, 3) vertices, (M*F, 3) faces, (M*V, 3) normals
     and (M,) int64 ids of the M vehicles."""
     tv, tf, tn, _ = _CAR
-    arr = _vehicle_array(vehicles)
-    scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
-    verts, faces, norms = _instances(tv, tf, tn, arr[:, :2], arr[:, 2], scale)
-    return verts, faces, norms, arr[:, 6].astype(np.int64)
+    xy, yaw, scale, ids = _vehicle_poses(vehicles)
+    verts, faces, norms = _instances(tv, tf, tn, xy, yaw, scale)
+    return verts, faces, norms, ids
 
 
-def _vehicle_array(vehicles: Sequence[VehicleState]) -> np.ndarray:
-    """(M, 7) x, y, yaw, length, width, height, id of the vehicles."""
-    return np.array(
+def _vehicle_poses(
+    vehicles: Sequence[VehicleState],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(M, 2) x, y [m], (M,) yaw [rad], (M, 3) the car template's scale to each vehicle's
+    length, width and height, and (M,) int64 ids of the vehicles."""
+    arr = np.array(
         [(v.x_m, v.y_m, v.yaw_rad, v.length_m, v.width_m, v.height_m, v.id) for v in vehicles],
         dtype=float,
     )
+    scale = arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H])
+    return arr[:, :2], arr[:, 2], scale, arr[:, 6].astype(np.int64)
 
 
 def _role_colors(ids: np.ndarray, roles: np.ndarray) -> np.ndarray:
@@ -844,15 +848,9 @@ def vehicle_triangles(
     if len(vehicles) == 0:
         return np.zeros((0, 3, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)
     tf, roles = _CAR[1], _CAR[3]
-    arr = _vehicle_array(vehicles)
-    corners = _posed_points(
-        _CAR_CORNERS,
-        arr[:, :2],
-        np.cos(arr[:, 2])[:, None],
-        np.sin(arr[:, 2])[:, None],
-        arr[:, 3:6] / np.array([_REF_L, _REF_W, _REF_H]),
-    ).reshape(-1, 3, 3)
-    ids = arr[:, 6].astype(np.int64)
+    xy, yaw, scale, ids = _vehicle_poses(vehicles)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    corners = _posed_points(_CAR_CORNERS, xy, c, s, scale).reshape(-1, 3, 3)
     albedo = _role_colors(ids, roles[tf[:, 0]])  # a face's role: its first vertex's
     return corners, albedo, np.repeat(ids, len(tf))
 
