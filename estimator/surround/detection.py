@@ -1005,11 +1005,13 @@ class VehicleDetector:
         n, labels = cv2.connectedComponents((plan > 0).astype(np.uint8), connectivity=8)
         if n <= 1:
             return plan
-        near, far, _ = self._label_extent(labels, n)
+        nz = np.flatnonzero(labels)
+        near, far, _ = self._label_extent(labels, n, nz)
         height = self.mount.height_m * (1.0 - near / np.maximum(far, 1e-6))
         keep = height >= self.cfg.min_height_m
-        keep[0] = False
-        return np.where(keep[labels], 255, 0).astype(np.uint8)
+        out = np.zeros(plan.shape, np.uint8)
+        out.ravel()[nz[keep[labels.ravel()[nz]]]] = 255
+        return out
 
     def _blobs(
         self, plan: np.ndarray, tall: np.ndarray | None = None, obstacle_map_only: bool = False
@@ -1017,20 +1019,22 @@ class VehicleDetector:
         """Candidates of the plan mask's blobs (clustered); obstacle_map_only: each blob's
         nearest cell as it is (no hidden-ground handling, no height test: the paper's)."""
         cfg = self.cfg
+        # (every step works on the few cells of the blobs, not the whole plan view)
         binary = (plan > 0).astype(np.uint8)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
+        n, labels = cv2.connectedComponents(binary, connectivity=8)
+        cells = np.flatnonzero(binary)
         px_area = cfg.m_per_px**2
-        keep = np.zeros(n, bool)
-        keep[1:] = stats[1:, cv2.CC_STAT_AREA] * px_area >= cfg.min_blob_m2
+        keep = np.bincount(labels.ravel()[cells], minlength=n) * px_area >= cfg.min_blob_m2
+        keep[0] = False
         if not keep.any():
             return []
-        kept = keep[labels].astype(np.uint8)
+        nz = cells[keep[labels.ravel()[cells]]]  # the kept blobs' cells, ascending
+        kept = np.zeros(plan.shape, np.uint8)
+        kept.ravel()[nz] = 1
         # nearby blobs are clustered: components of the dilated mask
         grown = cv2.dilate(kept, self._cluster_kernel)
         m, groups = cv2.connectedComponents(grown, connectivity=8)
-        groups[kept == 0] = 0
-        flat = groups.ravel()
-        nz = np.flatnonzero(flat)
+        flat = groups.ravel()  # read at the kept cells only (the growth is not a group's)
         counts = np.bincount(flat[nz], minlength=m)
         idx = np.arange(1, m)
         _, far, cell = self._label_extent(groups, m, nz)
@@ -1040,8 +1044,8 @@ class VehicleDetector:
             # a group without a part that reaches min_height_m is low structure only
             # (guard-rail posts closed into a strip along the road): not a vehicle
             cell = cell_t
-        boxes = ndimage.find_objects(groups)
         nz_lab = flat[nz]
+        boxes = _label_boxes(nz, nz_lab, m, plan.shape[1])
         nz_edge = self._plan_dist.ravel()[nz] < self._inner_map.ravel()[nz] + cfg.hidden_margin_m
         # cells of the group's tall parts (the vehicle, not low structure it was closed with)
         nz_tall = (tall.ravel()[nz] > 0) if tall is not None else np.ones(len(nz), bool)
@@ -1095,13 +1099,7 @@ class VehicleDetector:
             # range: checked again on the final (refined) point
             if rng > cfg.max_range_m + 5.0 or height < cfg.min_height_m:
                 continue
-            sl = boxes[g - 1]
-            bbox = (
-                int(sl[1].start),
-                int(sl[0].start),
-                int(sl[1].stop - sl[1].start),
-                int(sl[0].stop - sl[0].start),
-            )
+            bbox = tuple(int(v) for v in boxes[g])
             pix = (float(self.plan.map_x[r, c]), float(self.plan.map_y[r, c]))
             out.append(
                 Detection(
@@ -1118,3 +1116,19 @@ class VehicleDetector:
                 )
             )
         return out
+
+
+def _label_boxes(cells: np.ndarray, labels: np.ndarray, n: int, width: int) -> np.ndarray:
+    """(n, 4) int bounding box (x, y, w, h) [cells] of each label 0..n-1 from its cells'
+    flat indices in a grid ``width`` wide (zeros for labels without cells)."""
+    rows, cols = np.divmod(cells, width)
+    lo_r, lo_c = np.full(n, np.iinfo(np.int64).max), np.full(n, np.iinfo(np.int64).max)
+    hi_r, hi_c = np.full(n, -1), np.full(n, -1)
+    np.minimum.at(lo_r, labels, rows)
+    np.minimum.at(lo_c, labels, cols)
+    np.maximum.at(hi_r, labels, rows)
+    np.maximum.at(hi_c, labels, cols)
+    seen = hi_r >= 0
+    out = np.zeros((n, 4), np.int64)
+    out[seen] = np.stack([lo_c, lo_r, hi_c - lo_c + 1, hi_r - lo_r + 1], axis=1)[seen]
+    return out

@@ -367,3 +367,26 @@ def test_label_extent_matches_a_cell_by_cell_count(seed):
     assert np.isinf(got[0][0]) and got[2][0] == -1  # label 0 (background) has no cells
     for a, b in zip(got, given, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_label_boxes_match_scipy_find_objects(seed):
+    """Each label's bounding box from its cells' flat indices, against scipy's
+    `find_objects` on the label image (labels without cells: zeros)."""
+    from scipy import ndimage
+
+    from estimator.surround.detection import _label_boxes
+
+    rng = np.random.default_rng(seed)
+    S = 90
+    blobs = (cv2.GaussianBlur(rng.random((S, S + 7)), (0, 0), 3) > 0.52).astype(np.uint8)
+    n, labels = cv2.connectedComponents(blobs, connectivity=8)
+    gone = rng.integers(1, n)  # a label whose cells are all left out
+    cells = np.flatnonzero(labels)
+    cells = cells[labels.ravel()[cells] != gone]
+    boxes = _label_boxes(cells, labels.ravel()[cells], n + 2, labels.shape[1])
+    assert n > 5 and boxes.shape == (n + 2, 4)
+    for g, sl in enumerate(ndimage.find_objects(labels), start=1):
+        want = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start, sl[0].stop - sl[0].start)
+        assert tuple(boxes[g]) == ((0, 0, 0, 0) if g == gone else want)
+    assert not boxes[0].any() and not boxes[n:].any()
