@@ -1019,7 +1019,7 @@ class VehicleDetector:
         """Candidates of the plan mask's blobs (clustered); obstacle_map_only: each blob's
         nearest cell as it is (no hidden-ground handling, no height test: the paper's)."""
         cfg = self.cfg
-        # (every step works on the few cells of the blobs, not the whole plan view)
+        # (areas, extents and boxes from the few cells of the blobs, not the whole plan view)
         binary = (plan > 0).astype(np.uint8)
         n, labels = cv2.connectedComponents(binary, connectivity=8)
         cells = np.flatnonzero(binary)
