@@ -26,19 +26,20 @@ import numpy as np
 from estimator.camera.files import load_camera
 from estimator.camera.models import CameraModel
 from estimator.fileio import read_png
-from estimator.surround.detection import VehicleDetector
+from estimator.geometry import rot_z
+from estimator.surround.detection import DetectorConfig, VehicleDetector
 from scenarios.point_audit import camera_unit_rays
 from scenarios.runner import gt_evaluation_set
 from sim.drive import load_groundtruth
 
-STATIC_HEIGHTS = 41  # [-] static heights sampled over 0..2h/3 (spacing h/60)
-EVIDENT_PX = 2.0  # [px] full resolution: one pixel of the detector's working scale
-EDGE_GREY_PER_PX = 6.0  # [grey level/px] gradient of an edge (`refine_min_gradient`)
-
-
-def _rot(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s], [s, c]])
+STATIC_HEIGHTS = 41  # [-] static heights sampled over 0..z_max (spacing z_max/40)
+_DETECTOR = DetectorConfig()
+# [px] full resolution: one pixel of the detector's working scale
+EVIDENT_PX = float(_DETECTOR.scale)
+# [grey level/px] gradient of an edge: the detector's refinement's
+EDGE_GREY_PER_PX = _DETECTOR.refine_min_gradient
+# [-] the highest static point tested, as a share of the camera's height: lambda = h/(h - z)
+Z_MAX_PER_H = 1.0 - 1.0 / max(_DETECTOR.static_lambdas)
 
 
 def _camera_points(P_world: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
@@ -91,7 +92,7 @@ def drive_evidence(
     if baseline < 1 or every < 1:
         raise ValueError(f"baseline and every must be >= 1, got {baseline}, {every}")
     camera, mount = load_camera(drive_dir / "camera.yaml")
-    det = VehicleDetector(camera, mount)
+    det = VehicleDetector(camera, mount, _DETECTOR)
     area = det.analysed_area & det.comp.road_mask(1)
     rays = camera_unit_rays(camera)
     gt = load_groundtruth(drive_dir)
@@ -116,9 +117,11 @@ def drive_evidence(
             if len(r) and gv.id in then:
                 v, ve = now[gv.id], then[gv.id]
                 P = T[:3, 3] + (rays[r, c] * rng_m[r, c, None]) @ T[:3, :3].T
-                body = (P[:, :2] - [v["x_m"], v["y_m"]]) @ _rot(v["yaw_rad"])  # R^T (p - o)
-                P_e = np.c_[body @ _rot(ve["yaw_rad"]).T + [ve["x_m"], ve["y_m"]], P[:, 2]]
-                ev = pixel_evidence_px(camera, T, T_e, P, P_e, 2.0 / 3.0 * T[2, 3]) >= EVIDENT_PX
+                body = (P[:, :2] - [v["x_m"], v["y_m"]]) @ rot_z(v["yaw_rad"])[
+                    :2, :2
+                ]  # R^T (p - o)
+                P_e = np.c_[body @ rot_z(ve["yaw_rad"])[:2, :2].T + [ve["x_m"], ve["y_m"]], P[:, 2]]
+                ev = pixel_evidence_px(camera, T, T_e, P, P_e, Z_MAX_PER_H * T[2, 3]) >= EVIDENT_PX
                 rec["evident_px"] = int(ev.sum())
                 rec["evident_edge_px"] = int((ev & (g2[r, c] >= EDGE_GREY_PER_PX**2)).sum())
             out.append(rec)

@@ -157,6 +157,7 @@ def scene_flows_px(
     finite = np.isfinite(r) & np.all(np.isfinite(d), axis=1)
     X = p_a + r[finite, None] * dirs_w[finite]
     i_finite = i[finite]
+    ego = i == 0  # the ego car's body moves with the camera
     flows = []
     for b, displacement_m in moves:
         R_wb, p_b = b.T_world_actual[:3, :3], b.T_world_actual[:3, 3]
@@ -170,7 +171,7 @@ def scene_flows_px(
             moved[own] += table[at[own]]
         P_b[finite] = (moved - p_b) @ R_wb
         flow = camera.project(P_b) - w_a
-        flow[i == 0] = 0.0  # the ego car's body moves with the camera
+        flow[ego] = 0.0
         flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0).reshape(h, w, 2)
         flows.append(cv2.resize(flow.astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR))
     return flows

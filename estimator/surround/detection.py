@@ -1023,12 +1023,13 @@ class VehicleDetector:
         binary = (plan > 0).astype(np.uint8)
         n, labels = cv2.connectedComponents(binary, connectivity=8)
         cells = np.flatnonzero(binary)
+        cell_labels = labels.ravel()[cells]
         px_area = cfg.m_per_px**2
-        keep = np.bincount(labels.ravel()[cells], minlength=n) * px_area >= cfg.min_blob_m2
+        keep = np.bincount(cell_labels, minlength=n) * px_area >= cfg.min_blob_m2
         keep[0] = False
         if not keep.any():
             return []
-        nz = cells[keep[labels.ravel()[cells]]]  # the kept blobs' cells, ascending
+        nz = cells[keep[cell_labels]]  # the kept blobs' cells, ascending
         kept = np.zeros(plan.shape, np.uint8)
         kept.ravel()[nz] = 1
         # nearby blobs are clustered: components of the dilated mask
