@@ -24,6 +24,14 @@ the vehicle tracks that were detected within the last `max_coast_frames` frames.
 A candidate whose ground point is hidden (car-body mask) is a bearing-only
 measurement for the tracker; once assigned to a track, its reported position is
 the track's, moved onto the measured bearing.
+
+A vehicle's box. The detector fits a car-sized box to the lower outline it sees
+(`estimator.surround.boxfit`), and one frame's outline often leaves the heading
+ambiguous (one face seen: the rear or a side?). A vehicle track that knows the
+direction of its velocity over the ground (at least `heading_min_speed_mps`, std at
+most `heading_max_sigma_rad`) decides it: the outline is fitted again with headings
+within two std of that direction only. The box is reported beside the point (the
+tracked point stays the nearest seen one).
 """
 
 from __future__ import annotations
@@ -38,7 +46,7 @@ import numpy as np
 from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
 from estimator.egomotion.compensation import FrameCompensator
-from estimator.surround.boxfit import Box
+from estimator.surround.boxfit import Box, fit_box
 from estimator.surround.detection import DetectionFrame, DetectorConfig, VehicleDetector
 from estimator.surround.tracking import Track, Tracker, TrackerConfig
 
@@ -56,6 +64,10 @@ class SurroundConfig:
     # detection filtered with the earlier ones), not the single-frame detection; a hidden
     # one (bearing only) is reported on its measured bearing at the track's range
     report_filtered: bool = True  # [-]
+    # a vehicle's box heading from its track: the direction of its velocity over the ground,
+    # where the track knows it (speed and its std below); else from the box fit alone
+    heading_min_speed_mps: float = 3.0  # [m/s] slower tracks: heading from the fit alone
+    heading_max_sigma_rad: float = 0.35  # [rad] a less certain heading is not used
 
     def __post_init__(self) -> None:
         if not (0 < self.hit_rate_alpha <= 1 and 0 <= self.vehicle_off <= self.vehicle_on <= 1):
@@ -184,6 +196,10 @@ class SurroundAnalyzer:
                 self._vehicle.add(t.id)
             if hit and t.id in self._vehicle and any(t.extra is c for c in cands):
                 d = t.extra
+                heading = self._track_heading(t)
+                if heading is not None and not d.hidden and d.outline_xy is not None:
+                    yaw, sigma = heading
+                    d.box = fit_box(d.outline_xy, self.detector._box_cfg, yaw, 2 * sigma) or d.box
                 if d.box is not None:
                     b = d.box
                     self._box[t.id] = (
@@ -204,6 +220,19 @@ class SurroundAnalyzer:
                     d.box = replace(d.box, x_m=d.x_m + dx, y_m=d.y_m + dy)
                 out.append(d)
         return out
+
+    def _track_heading(self, track: Track) -> tuple[float, float] | None:
+        """(heading, its std) [rad] of a track's velocity over the ground, or None where
+        the track is too slow or its direction too uncertain."""
+        v = np.asarray(track.x[2:4], float)
+        speed = float(np.hypot(*v))
+        if speed < self.cfg.heading_min_speed_mps:
+            return None
+        across = np.array([-v[1], v[0]]) / speed  # unit vector across the velocity
+        sigma = math.sqrt(max(float(across @ track.P[2:4, 2:4] @ across), 0.0)) / speed
+        if sigma > self.cfg.heading_max_sigma_rad:
+            return None
+        return math.atan2(v[1], v[0]), sigma
 
     def track_box(self, track: Track) -> Box | None:
         """The vehicle box of a track (its latest fitted box, kept at the same offset from

@@ -75,13 +75,18 @@ def _span(p: np.ndarray, on: np.ndarray) -> np.ndarray:
 
 
 def fit_box(
-    outline_xy: np.ndarray, cfg: BoxFitConfig | None = None, prior_yaw_rad: float = 0.0
+    outline_xy: np.ndarray,
+    cfg: BoxFitConfig | None = None,
+    prior_yaw_rad: float = 0.0,
+    yaw_window_rad: float | None = None,
 ) -> Box | None:
     """The vehicle box whose camera-facing faces fit the seen outline.
 
     outline_xy: (N, 2) points [m] of the vehicle's lower outline (ego road frame; the
-    camera at the origin). prior_yaw_rad: the heading expected (the road's). Returns
-    None for fewer than 3 points.
+    camera at the origin). prior_yaw_rad: the heading expected (the road's).
+    yaw_window_rad: only headings within this of the prior (modulo half a turn) are
+    tried (a heading known from elsewhere, e.g. the vehicle's track); None: all.
+    Returns None for fewer than 3 points.
     """
     cfg = cfg or BoxFitConfig()
     p = np.asarray(outline_xy, float).reshape(-1, 2)
@@ -89,6 +94,10 @@ def fit_box(
         return None
     L, W = (float(v) for v in cfg.size_m)
     th = np.radians(np.arange(-90.0, 90.0, cfg.heading_step_deg))  # (A,)
+    if yaw_window_rad is not None:
+        off = np.radians(np.arange(-90.0, 90.0, 1.0))
+        off = off[np.abs(off) <= max(yaw_window_rad, np.radians(1.0))]
+        th = np.mod(prior_yaw_rad + off + np.pi / 2, np.pi) - np.pi / 2
     c, s = np.cos(th)[:, None], np.sin(th)[:, None]
     u = c * p[:, 0] + s * p[:, 1]  # (A, N) along the length
     v = -s * p[:, 0] + c * p[:, 1]  # across

@@ -225,6 +225,7 @@ class Detection:
     score: float = float("nan")
     height_m: float = float("nan")  # [m] apparent height h (1 - d_near / d_far) of the blob
     box: Box | None = None  # the vehicle's box fitted to its lower outline (None: no fit)
+    outline_xy: np.ndarray | None = None  # (M, 2) [m] the lower outline the box was fitted to
 
 
 class DetectionFrame:
@@ -881,7 +882,8 @@ class VehicleDetector:
         # the camera pixel of the reported point: the contour pixel nearest to it
         i = int(np.argmin(np.hypot(*(xy_px - xy).T)))
         xy = xy * self._clearance_scale
-        det.box = fit_box(outline * self._clearance_scale, self._box_cfg)
+        det.outline_xy = outline * self._clearance_scale
+        det.box = fit_box(det.outline_xy, self._box_cfg)
         det.x_m, det.y_m = float(xy[0]), float(xy[1])
         det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))

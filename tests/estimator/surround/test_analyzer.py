@@ -11,6 +11,7 @@ from estimator.camera.files import load_camera
 from estimator.egomotion.homography import make_state
 from estimator.surround.analyzer import SurroundAnalyzer, SurroundConfig
 from estimator.surround.detection import Detection, DetectionFrame
+from tests.estimator.surround.test_boxfit import seen_outline
 
 DT = 1.0 / 15.0  # [s]
 SPEED = 20.0  # [m/s] ego
@@ -177,3 +178,57 @@ def test_vehicle_box_is_carried_with_its_track(omni):
     assert d.box.x_m == pytest.approx(d.x_m + 2.35) and d.box.y_m == pytest.approx(d.y_m + 0.95)
     tr.id = 10_000  # an id the analyzer never saw
     assert sa.track_box(tr) is None
+
+
+def test_box_heading_from_the_track(omni):
+    """A car driving at 0.6 rad to the ego car's heading, seen end-on-ish, whose single-frame
+    boxes are placed across its true heading: once its track knows its velocity (12 m/s over
+    the ground), the reported box is fitted again near that heading, at the car's centre
+    from the point it is reported with; a car crawling at 2 m/s keeps the detector's box."""
+    from estimator.surround.boxfit import Box
+
+    cam, mount = omni
+    sa = SurroundAnalyzer(cam, mount)
+    yaw, ground_speed = 0.6, 12.0
+    vel = np.array([ground_speed * math.cos(yaw) - SPEED, ground_speed * math.sin(yaw)])
+    offsets, frames = [], []  # the true centre from the detected point
+    for k in range(20):
+        c = np.array([18.0, 4.0]) + vel * DT * k
+        pts = seen_outline(*c, yaw, noise_m=0.05, seed=k)
+        near = pts[np.argmin(np.hypot(*pts.T))]
+        d = _det(*near)
+        d.outline_xy = pts
+        d.box = Box(c[0] + 1.5, c[1] - 1.5, yaw - math.pi / 2, 4.7, 1.9, 0.01)  # misfitted
+        offsets.append(c - near)
+        frames.append([d])
+    _stub(sa, frames)
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
+    for k in range(1, 20):
+        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    (d,) = sf.detection.detections
+    err = math.hypot(*(np.array([d.box.x_m - d.x_m, d.box.y_m - d.y_m]) - offsets[-1]))
+    assert abs(d.box.yaw_rad - yaw) < 0.15 and err < 0.5
+
+
+def test_track_heading_needs_speed_and_certainty(omni):
+    """The heading of a track's velocity over the ground, with its std from the velocity's
+    covariance across it; none below heading_min_speed_mps or above heading_max_sigma_rad."""
+    from estimator.surround.tracking import Track
+
+    sa = SurroundAnalyzer(*omni)
+    cfg = sa.cfg
+
+    def track(vx, vy, var_across):
+        P = np.eye(4)
+        v = np.array([vx, vy]) / math.hypot(vx, vy)
+        across = np.array([-v[1], v[0]])
+        P[2:, 2:] = 0.01 * np.outer(v, v) + var_across * np.outer(across, across)
+        return Track(id=1, x=np.array([10.0, 2.0, vx, vy]), P=P)
+
+    yaw, sigma = sa._track_heading(track(8.0, 6.0, 1.0))
+    assert yaw == pytest.approx(math.atan2(6.0, 8.0)) and sigma == pytest.approx(1.0 / 10.0)
+    slow = 0.9 * cfg.heading_min_speed_mps
+    assert sa._track_heading(track(slow, 0.0, 1e-4)) is None
+    unsure = (cfg.heading_max_sigma_rad * 10.0 * 1.1) ** 2  # [m^2/s^2] at 10 m/s
+    assert sa._track_heading(track(8.0, 6.0, unsure)) is None
