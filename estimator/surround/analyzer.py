@@ -46,7 +46,7 @@ import numpy as np
 from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
 from estimator.egomotion.compensation import FrameCompensator
-from estimator.surround.boxfit import Box, fit_box
+from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
 from estimator.surround.detection import DetectionFrame, DetectorConfig, VehicleDetector
 from estimator.surround.tracking import Track, Tracker, TrackerConfig
 
@@ -74,6 +74,11 @@ class SurroundConfig:
             raise ValueError(
                 f"SurroundConfig: need 0 < alpha <= 1 and 0 <= off <= on <= 1, "
                 f"got {self.hit_rate_alpha}, {self.vehicle_off}, {self.vehicle_on}"
+            )
+        if not (self.heading_min_speed_mps > 0 and self.heading_max_sigma_rad > 0):
+            raise ValueError(
+                f"SurroundConfig: heading_min_speed_mps and heading_max_sigma_rad must be > 0, "
+                f"got {self.heading_min_speed_mps}, {self.heading_max_sigma_rad}"
             )
 
 
@@ -115,6 +120,7 @@ class SurroundAnalyzer:
         self.compensator = FrameCompensator(camera, mount)
         self.detector = VehicleDetector(camera, mount, detector, self.compensator)
         self.tracker = Tracker(tracker)
+        self._box_cfg = BoxFitConfig(size_m=self.detector.cfg.hidden_box_m)
         self.cfg = surround or SurroundConfig()
         n = self.detector.cfg.baseline_frames
         self._frames: deque[np.ndarray] = deque(maxlen=n + 1)
@@ -199,7 +205,7 @@ class SurroundAnalyzer:
                 heading = self._track_heading(t)
                 if heading is not None and not d.hidden and d.outline_xy is not None:
                     yaw, sigma = heading
-                    d.box = fit_box(d.outline_xy, self.detector._box_cfg, yaw, 2 * sigma) or d.box
+                    d.box = fit_box(d.outline_xy, self._box_cfg, yaw, 2 * sigma) or d.box
                 if d.box is not None:
                     b = d.box
                     self._box[t.id] = (

@@ -95,7 +95,7 @@ def fit_box(
     L, W = (float(v) for v in cfg.size_m)
     th = np.radians(np.arange(-90.0, 90.0, cfg.heading_step_deg))  # (A,)
     if yaw_window_rad is not None:
-        off = np.radians(np.arange(-90.0, 90.0, 1.0))
+        off = np.radians(np.arange(-90.0, 90.0, 1.0))  # a 1-deg grid within the window
         off = off[np.abs(off) <= max(yaw_window_rad, np.radians(1.0))]
         th = np.mod(prior_yaw_rad + off + np.pi / 2, np.pi) - np.pi / 2
     c, s = np.cos(th)[:, None], np.sin(th)[:, None]

@@ -130,6 +130,10 @@ def test_outputs_have_the_fields_the_runner_draws(omni):
 def test_bad_config():
     with pytest.raises(ValueError):
         SurroundConfig(vehicle_on=0.3, vehicle_off=0.6)
+    with pytest.raises(ValueError, match="heading_min_speed_mps"):
+        SurroundConfig(heading_min_speed_mps=0.0)
+    with pytest.raises(ValueError, match="heading_max_sigma_rad"):
+        SurroundConfig(heading_max_sigma_rad=-0.1)
 
 
 # ------------------------------------------------------------------ a rendered drive
