@@ -56,6 +56,18 @@ def _stub(sa, frames):
     sa.detector.detect = detect
 
 
+def _run(sa, frames):
+    """Step the analyzer over a blank first frame and then one frame per candidate list of
+    ``frames`` but the last (frame k reports candidates k - 1), the ego car at SPEED; the
+    last frame's `SurroundFrame`."""
+    _stub(sa, frames)
+    img = np.zeros((sa.camera.height, sa.camera.width, 3), np.uint8)
+    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
+    for k in range(1, len(frames)):
+        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    return sf
+
+
 def test_steady_vehicle_is_reported_flickering_clutter_is_not(omni):
     """A vehicle 15 m ahead at the ego's speed is a candidate every frame; clutter
     appears at random places about every other frame (the structure a rendered
@@ -91,20 +103,15 @@ def test_hidden_candidate_reported_on_its_bearing_at_the_tracks_range(omni):
     """A vehicle alongside: first seen with its ground point, then only its bearing
     (hidden). While hidden it is reported on the measured bearing, at the range of
     its track, nearer the truth than the detector's assumed range."""
-    cam, mount = omni
-    sa = SurroundAnalyzer(cam, mount)
+    sa = SurroundAnalyzer(*omni)
     frames = [[_det(-9.0 + 0.2 * k, 4.0)] for k in range(12)]
     for k in range(12, 20):
         x, y = -9.0 + 0.2 * k, 4.0
         b = math.atan2(y, x)
         # the detector's assumed range: 0.6 of the body mask's 7.3 m
         frames.append([_det(4.4 * math.cos(b), 4.4 * math.sin(b), hidden=True)])
-    _stub(sa, frames)
-    img = np.zeros((cam.height, cam.width, 3), np.uint8)
-    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
     # the car gains 3 m/s on the ego car: 0.2 m per frame
-    for k in range(1, 20):
-        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    sf = _run(sa, frames)
     (d,) = sf.detection.detections
     assert d.hidden
     truth = np.array([-9.0 + 0.2 * 18, 4.0])  # frame k reports candidates k - 1
@@ -162,18 +169,13 @@ def test_vehicle_box_is_carried_with_its_track(omni):
     moves with the reported (filtered) point; a track without a box has none."""
     from estimator.surround.boxfit import Box
 
-    cam, mount = omni
-    sa = SurroundAnalyzer(cam, mount)
+    sa = SurroundAnalyzer(*omni)
     frames = []
     for k in range(15):
         d = _det(12.0 + 0.1 * k, 3.0)
         d.box = Box(d.x_m + 2.35, d.y_m + 0.95, 0.05, 4.7, 1.9, 0.01)
         frames.append([d])
-    _stub(sa, frames)
-    img = np.zeros((cam.height, cam.width, 3), np.uint8)
-    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
-    for k in range(1, 15):
-        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    sf = _run(sa, frames)
     (tr,) = sf.tracks
     box = sa.track_box(tr)
     assert box is not None and (box.yaw_rad, box.length_m, box.width_m) == (0.05, 4.7, 1.9)
@@ -188,11 +190,10 @@ def test_box_heading_from_the_track(omni):
     """A car driving at 0.6 rad to the ego car's heading, seen end-on-ish, whose single-frame
     boxes are placed across its true heading: once its track knows its velocity (12 m/s over
     the ground), the reported box is fitted again near that heading, at the car's centre
-    from the point it is reported with; a car crawling at 2 m/s keeps the detector's box."""
+    from the point it is reported with."""
     from estimator.surround.boxfit import Box
 
-    cam, mount = omni
-    sa = SurroundAnalyzer(cam, mount)
+    sa = SurroundAnalyzer(*omni)
     yaw, ground_speed = 0.6, 12.0
     vel = np.array([ground_speed * math.cos(yaw) - SPEED, ground_speed * math.sin(yaw)])
     offsets, frames = [], []  # the true centre from the detected point
@@ -205,11 +206,7 @@ def test_box_heading_from_the_track(omni):
         d.box = Box(c[0] + 1.5, c[1] - 1.5, yaw - math.pi / 2, 4.7, 1.9, 0.01)  # misfitted
         offsets.append(c - near)
         frames.append([d])
-    _stub(sa, frames)
-    img = np.zeros((cam.height, cam.width, 3), np.uint8)
-    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
-    for k in range(1, 20):
-        sf = sa.step(k, k * DT, img, X, DT, SPEED, 0.0)
+    sf = _run(sa, frames)
     (d,) = sf.detection.detections
     err = math.hypot(*(np.array([d.box.x_m - d.x_m, d.box.y_m - d.y_m]) - offsets[-1]))
     assert abs(d.box.yaw_rad - yaw) < 0.15 and err < 0.5
