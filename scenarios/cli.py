@@ -312,6 +312,11 @@ def estimate(
     road_masks: Path | None = typer.Option(
         None, help="folder of road-mask PNGs, one per frame (non-zero = road)"
     ),
+    body_mask: Path | None = typer.Option(
+        None,
+        help="PNG of the camera's size, non-zero where it sees the car's own body: surround "
+        "analysis then sees the road up to the body (default: the camera's body cone)",
+    ),
     settings: list[str] = typer.Option(
         [],
         "--set",
@@ -332,7 +337,7 @@ def estimate(
 ) -> None:
     """Estimate ego-motion of any recording, and detect and track the vehicles around the
     car; writes OUT/egomotion.csv, OUT/tracks.csv, pictures and OUT/report.html."""
-    from estimator.camera.files import load_camera
+    from estimator.camera.files import load_body_mask, load_camera
     from estimator.egomotion.baselines import check_estimator
     from estimator.pipeline import estimate_frames, write_egomotion_csv
     from estimator.recording import (
@@ -355,6 +360,7 @@ def estimate(
         given_times = frame_times(fps) if fps is not None else None
         config = parse_settings(settings)
         cam, mount = load_camera(camera)
+        seen = cam.with_body_mask(load_body_mask(body_mask, cam)) if body_mask else cam
         can_track = read_can_csv(can)
         n_frames = count_frames(video)
         rate = None
@@ -371,7 +377,7 @@ def estimate(
             from scenarios.surround_outputs import SurroundRecorder
 
             recorder = SurroundRecorder(
-                make_surround(detector, cam, mount, DetectorConfig()),
+                make_surround(detector, seen, mount, DetectorConfig()),
                 detector,
                 cam,
                 mount,

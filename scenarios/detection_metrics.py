@@ -75,6 +75,8 @@ CO_MOVING_MPS = 1.0  # [m/s] a vehicle within this of the ego car's velocity is 
 MOTION_CLASSES = ("co-moving", "overtaking", "overtaken", "oncoming", "crossing", "stationary")
 RANGE_BANDS_M = (0.0, 5.0, 10.0, 15.0, 25.0)  # [m] edges of the range bands of `breakdown`
 SECTORS = ("front", "left", "rear", "right")  # |bearing| < 45, 45..135 left, >= 135, right
+UNMATCHED_KINDS = ("duplicate", "misplaced", "clutter")  # `unmatched_split`
+MISPLACED_M = 5.0  # [m] unmatched this near a vehicle: misplaced, farther: clutter; 1.5-10
 
 
 def motion_class(speed_mps: float, yaw_rad: float, ego_speed_mps: float, ego_yaw_rad: float) -> str:
@@ -486,10 +488,11 @@ class _Placed:
     motion: list[str]
     hyp_xy: np.ndarray
     matched: np.ndarray
+    hyp_gt_m: np.ndarray  # (H,) [m] footprint distance to the frame's nearest vehicle (inf: none)
 
     @staticmethod
     def of(frames: Sequence[EvalFrame], cfg: MetricsConfig) -> _Placed:
-        _, matches = _match_all(frames, cfg)
+        dists, matches = _match_all(frames, cfg)
         gt_hit = {(k, r) for k, r, _ in matches}
         hyp_hit = {(k, c) for k, _, c in matches}
         cam = np.asarray(cfg.camera_xy, float)
@@ -502,6 +505,7 @@ class _Placed:
             [g.motion for _, _, g in gt],
             np.asarray([frames[k].hyp_xy[c] - cam for k, c in hyp], float).reshape(-1, 2),
             np.array([(k, c) in hyp_hit for k, c in hyp], bool),
+            np.array([dists[k][:, c].min(initial=np.inf) for k, c in hyp], float).reshape(-1),
         )
 
 
@@ -549,11 +553,29 @@ def _bins(placed: _Placed, names: Sequence[str], label_of) -> dict:
     return out
 
 
+def unmatched_split(placed: _Placed, gate_m: float) -> dict:
+    """What the hypotheses that match no vehicle are: {"hyp_count", "unmatched",
+    "duplicate" (within the gate of a vehicle that another hypothesis matched),
+    "misplaced" (within `MISPLACED_M` of a vehicle's footprint, beyond the gate: a vehicle
+    placed wrong), "clutter" (farther from every vehicle of the frame), and the three
+    shares of the unmatched ("duplicate_share", ...; NaN when none is unmatched)}."""
+    d = placed.hyp_gt_m[~placed.matched]
+    kinds = (d <= gate_m, (d > gate_m) & (d <= MISPLACED_M), d > MISPLACED_M)
+    n = {k: int(sel.sum()) for k, sel in zip(UNMATCHED_KINDS, kinds, strict=True)}
+    return {
+        "hyp_count": len(placed.matched),
+        "unmatched": len(d),
+        **n,
+        **{f"{k}_share": ratio(v, len(d)) for k, v in n.items()},
+    }
+
+
 def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
     """Where detection fails: recall and precision by range band (`RANGE_BANDS_M`) and by
     bearing sector (`sector`), recall by the vehicles' motion (`MOTION_CLASSES`;
-    a hypothesis has no motion, so no precision there), and every metric of `evaluate`
-    over the frames where the ego car moves and over those where it is stopped.
+    a hypothesis has no motion, so no precision there), what the unmatched hypotheses are
+    (`unmatched_split`), and every metric of `evaluate` over the frames where the ego car
+    moves and over those where it is stopped.
 
     A vehicle is placed by its footprint point nearest the camera, a hypothesis by its
     own point; a matched pair counts in the vehicle's bin for recall and in the
@@ -581,6 +603,7 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
         "range_bands": _bins(placed, BAND_NAMES, band_labels),
         "sectors": _bins(placed, SECTORS, _sector_labels),
         "motion": motion,
+        "unmatched": unmatched_split(placed, cfg.gate_m),
         "ego_state": ego,
     }
 

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 
 from estimator.fileio import write_text
+from scenarios.detection_metrics import MISPLACED_M, UNMATCHED_KINDS
 
 _CSS = """body{font-family:sans-serif;margin:1.5em;max-width:1700px}
 table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 8px}
@@ -61,6 +62,18 @@ def _surround_section(surround: dict) -> str:
         parts.append(
             "<h3>by motion relative to the ego car</h3>"
             + _rows_table(b["motion"], ("recall", "gt_count", "matched"))
+        )
+    if "unmatched" in b:
+        u = b["unmatched"]
+        parts.append(
+            "<h3>what the unmatched track points are</h3>"
+            + _rows_table(
+                {k: {"count": u[k], "share": u[f"{k}_share"]} for k in UNMATCHED_KINDS},
+                ("count", "share"),
+            )
+            + f"<p>{_fmt(u['unmatched'])} of {_fmt(u['hyp_count'])} track points match no "
+            f"vehicle: duplicate (within the gate of a vehicle another point matched), "
+            f"misplaced (within {MISPLACED_M:g} m of one), clutter (farther from all)</p>"
         )
     if "ego_state" in b:
         rows = {

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.camera.files import load_camera
+from estimator.camera.files import BODY_MASK_FILE, load_body_mask, load_camera
 from estimator.egomotion.baselines import check_estimator, make_estimator
 from estimator.egomotion.homography import homography, make_state
 from estimator.fileio import write_json, write_png
@@ -165,7 +165,9 @@ def run_scenario(
     can = read_can_csv(drive_dir / "can.csv")
     det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
     est = make_estimator(estimator, camera, mount)
-    surround = make_surround(detector, camera, mount, det_cfg)
+    body = drive_dir / BODY_MASK_FILE  # surround analysis sees the road up to the body
+    seen = camera.with_body_mask(load_body_mask(body, camera)) if body.exists() else camera
+    surround = make_surround(detector, seen, mount, det_cfg)
     # the motion mask against the vehicles' true pixels (built-in detectors have one)
     audit = (
         SegmentationAudit(surround.detector.analysed_area)

@@ -10,6 +10,8 @@ Layout of ``out/``::
     can.csv             CAN messages (t_s, speed_mps)
     timestamps.csv      frame times (frame, t_s)
     camera.yaml         the camera and its mount
+    body_mask.png       uint8, 255 where the camera sees the ego car's own body (omni
+                        cameras; `estimator.camera.files.load_body_mask`)
     scenario.yaml       the resolved scenario
     render.json         how the frames are rendered ({"renderer": ..., "face_px": ...});
                         a resume must match
@@ -33,7 +35,7 @@ import cv2
 import numpy as np
 
 from estimator import fileio as io
-from estimator.camera.files import resolve_camera, save_camera
+from estimator.camera.files import BODY_MASK_FILE, resolve_camera, save_camera
 from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
 from estimator.progress import track
@@ -430,6 +432,7 @@ def render_drive(
     n = scenario.n_frames if max_frames is None else min(scenario.n_frames, max_frames)
     manifest = _read_manifest(out_dir)
     if manifest.get("complete") and manifest.get("frames") == n:  # nothing to simulate either
+        _write_body_mask(out_dir)  # renders made before drives held one
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
     if renderer not in RENDERERS:  # before the simulation
         raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
@@ -457,6 +460,8 @@ def render_drive(
             io.write_png(out_dir / "ids" / f"{name}.png", (fr.ids + 1).astype(np.uint16))
             rng_cm = np.where(np.isfinite(fr.range_m), np.clip(fr.range_m * 100, 1, 65535), 0)
             io.write_png(out_dir / "range" / f"{name}.png", rng_cm.astype(np.uint16))
+            if k == 0:
+                _write_body_mask(out_dir)
             # written last: its presence marks the frame as done
             io.write_json(out_dir / "gt" / f"{name}.json", drive.groundtruth(k, fr.ids))
             render_times.append(time.perf_counter() - t0)  # between frames written
@@ -466,6 +471,17 @@ def render_drive(
     ms = 1000 * float(np.median(render_times)) if render_times else float("nan")
     _finalise(out_dir, n, scenario, ms)
     return DriveResult(out_dir, n, len(todo), ms)
+
+
+def _write_body_mask(out_dir: Path) -> None:
+    """``body_mask.png`` from frame 0's ids (the ego car's id 0 is written as 1; the body
+    is drawn once and is the same in every frame), where the camera sees the body."""
+    ids_path = out_dir / "ids" / f"{frame_name(0)}.png"
+    if (out_dir / BODY_MASK_FILE).exists() or not ids_path.exists():
+        return
+    body = io.read_png(ids_path) == 1
+    if body.any():
+        io.write_png(out_dir / BODY_MASK_FILE, body.astype(np.uint8) * 255)
 
 
 def _check_render_settings(out_dir: Path, settings: dict, resuming: bool) -> None:

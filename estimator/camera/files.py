@@ -34,6 +34,11 @@ elevation) changes, the intrinsics that are *not* given are recomputed:
   ``u0 = (u0 + 0.5) sx - 0.5``, ``v0 = (v0 + 0.5) sy - 0.5`` with
   ``sx = width'/width``, ``sy = height'/height`` (same field of view).
 
+A car-body mask (``body_mask.png`` beside a drive's ``camera.yaml``; ``--body-mask`` for
+a recording) is a grey PNG of the camera's size, nonzero where the camera sees the car's
+own body (`load_body_mask`); surround analysis then sees the road up to the body's
+silhouette instead of the body cone (`CameraModel.with_body_mask`).
+
 Every problem (unknown key, wrong type, bad value, unknown preset, unreadable
 YAML) raises `CameraFileError` (a ValueError) naming the file or spec, the
 dotted key and the bad value. Types are strict: ``width: 640.5`` or
@@ -48,6 +53,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
+import cv2
+import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
@@ -300,6 +307,30 @@ def load_camera(path_or_name: str | os.PathLike) -> tuple[CameraModel, CameraMou
     """``(camera, mount)`` from a preset name (``omni-near``, ...) or a camera file path."""
     path, where = _locate(path_or_name)
     return camera_from_dict(_read_yaml(path, where), where)
+
+
+BODY_MASK_FILE = "body_mask.png"  # a drive's car-body pixels, beside its camera.yaml
+
+
+def load_body_mask(path: str | os.PathLike, camera: CameraModel) -> np.ndarray:
+    """(height, width) bool: the pixels of ``camera`` that see the car's own body, from a
+    grey (or RGB) PNG of the camera's size, nonzero there. `CameraFileError` naming the
+    file when it is unreadable, of another size, or marks no pixel or every pixel."""
+    path = Path(path)
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise CameraFileError(f"{path}: cannot read the body mask (a PNG image)")
+    body = (img if img.ndim == 2 else img.max(axis=2)) > 0
+    if body.shape != (camera.height, camera.width):
+        raise CameraFileError(
+            f"{path}: body mask is {body.shape[1]}x{body.shape[0]} (WxH), the camera "
+            f"{camera.width}x{camera.height}"
+        )
+    if not body.any() or body.all():
+        raise CameraFileError(
+            f"{path}: body mask marks {'no' if not body.any() else 'every'} pixel"
+        )
+    return body
 
 
 def save_camera(path: str | os.PathLike, camera: CameraModel, mount: CameraMount) -> Path:

@@ -261,6 +261,24 @@ class CameraModel(ABC):
         """A copy with some constructor arguments changed."""
         return type(self).from_dict({**self.params(), **changes})
 
+    def with_body_mask(self, body: np.ndarray) -> CameraModel:
+        """A copy whose `valid_mask` leaves out ``body`` ((height, width) bool: the pixels
+        that see the car's own body) in place of the model's body cone (omni
+        ``body_mask_deg``, which it sets to 0); its rays are otherwise the same.
+
+        The mask is not a constructor argument: `to_dict` of the copy does not hold it.
+        """
+        body = np.asarray(body, bool)
+        if body.shape != (self.height, self.width):
+            raise ValueError(
+                f"body mask must be (height, width) = {(self.height, self.width)}, got {body.shape}"
+            )
+        copy = (
+            self.replace(body_mask_deg=0.0) if "body_mask_deg" in self._PARAMS else self.replace()
+        )
+        copy._cache["mask"] = _readonly(copy.valid_mask() & ~body)
+        return copy
+
     def __eq__(self, other: object) -> bool:
         return type(other) is type(self) and other.to_dict() == self.to_dict()
 

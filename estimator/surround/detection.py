@@ -59,10 +59,11 @@ blob's parts that reach a vehicle's height (`VehicleDetector._tall_parts`); a
 blob without such a part (low structure, e.g. guard-rail posts closed into a
 strip) is no candidate.
 
-Obstacle map where the road is hidden: a blob whose nearest point lies on the
-inner edge of the seen road (the omni camera's car-body mask, ~7.3 m) does not
-show where the vehicle meets the road, only its bearings. Such a detection is
-flagged ``hidden``; the arc along which the blob's tall parts meet the edge gives
+Obstacle map where the road is hidden: a blob whose nearest point sees a pixel next to
+the car-body mask (the body's silhouette where one is given,
+`estimator.camera.models.CameraModel.with_body_mask`; else the omni camera's body cone,
+~7.3 m of road) does not show where the vehicle meets the road, only its bearings. Such
+a detection is flagged ``hidden``; the arc along which the blob's tall parts meet the edge gives
 its bearings, and a car-sized box along the ego car's heading that spans them gives
 its range (`hidden_box_nearest_point`: the nearer, the wider; without a fit, at
 ``hidden_range_frac`` of the edge's range on the arc's middle); the tracker refines
@@ -139,9 +140,8 @@ class DetectorConfig:
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
     score_threshold: float = 0.5  # [-] m above which a pixel is independently moving
     border_margin_px: int = 12  # [px] margin inside the field of view's outer rim left out
-    # margin along the inner edge (the omni camera's car-body mask): the mask already ends
-    # ~45 px beyond the car body, and at that edge 1 px is ~0.25 m of road: a wide margin
-    # there hides the ground point of every vehicle within ~10 m instead of ~7.5 m
+    # margin along the inner edge (the car-body mask): at the body cone's edge 1 px is
+    # ~0.25 m of road: a wide margin there hides the ground point of every vehicle nearby
     inner_margin_px: int = 4  # [px]
     coarse_level: bool = True  # [-] also score one pyramid level coarser
     # ego car (nearly) stopped: the static and co-moving hypotheses coincide (S ~ 0) and
@@ -159,7 +159,9 @@ class DetectorConfig:
     min_range_m: float = 0.0  # detections nearer than this are dropped [m]
     # obstacle map where the ground is hidden (car-body mask)
     min_height_m: float = 0.8  # [m] a vehicle's moving part reaches at least this height
-    hidden_margin_m: float = 0.6  # nearest point within this of the seen area's inner edge [m]
+    # a blob is hidden when its nearest point sees a pixel this close to the analysed area's
+    # inner edge (inner_margin_px off the car-body mask): ~0.6 m of road at the cone's edge
+    hidden_margin_px: int = 3  # [px], 0..10
     hidden_range_frac: float = 0.6  # [-] without an arc to fit: placed at this fraction of it
     # a hidden vehicle is a box of this size along the ego car's heading, placed so that it
     # spans the bearings its blob spans at the edge (`hidden_box_nearest_point`)
@@ -499,10 +501,8 @@ class VehicleDetector:
         self._plan_dist = np.hypot(x, y).astype(np.float32)
         self._plan_bearing = np.arctan2(y, x)
         self._inner = self._inner_edge()
-        nb = len(self._inner)
-        bins = ((self._plan_bearing + np.pi) / (2 * np.pi) * nb).astype(int) % nb
-        self._inner_map = self._inner[bins].astype(np.float32)  # (S, S) inner edge per cell
         self._edge_px_per_rad = self._edge_pixel_density()  # (nb,) [px/rad] along the edge
+        self._edge_cells = self._hidden_edge_cells()  # (S, S) bool: cells that see the edge
         self._n = self.comp.n
         self._lams = tuple(cfg.moving_lambdas) + tuple(cfg.static_lambdas)
         self._road_xy = pixel_road_xy(camera, mount)  # (H, W, 2) inverse perspective
@@ -546,6 +546,19 @@ class VehicleDetector:
         seen &= self.valid[v, u]
         np.minimum.at(inner, b[seen], self._plan_dist[seen])
         return inner
+
+    def _hidden_edge_cells(self) -> np.ndarray:
+        """(S, S) bool: plan cells whose pixel lies within inner_margin_px +
+        hidden_margin_px of the car-body mask (the holes of the field of view), where a
+        blob's nearest point says that the vehicle goes on behind the body."""
+        v = np.asarray(self.camera.valid_mask(), np.uint8)
+        hole = (ndimage.binary_fill_holes(v > 0) & (v == 0)).astype(np.uint8)
+        r = self.cfg.inner_margin_px + self.cfg.hidden_margin_px
+        near = cv2.dilate(hole, np.ones((2 * r + 1,) * 2, np.uint8)) > 0
+        mx, my = self.plan.map_x, self.plan.map_y
+        u = np.clip(np.round(mx).astype(int), 0, near.shape[1] - 1)
+        w = np.clip(np.round(my).astype(int), 0, near.shape[0] - 1)
+        return near[w, u] & (mx >= 0)
 
     def _edge_pixel_density(self) -> np.ndarray:
         """(nb,) image pixels per radian of bearing along the inner edge (per bin of
@@ -1049,7 +1062,7 @@ class VehicleDetector:
             cell = cell_t
         nz_lab = flat[nz]
         boxes = _label_boxes(nz, nz_lab, m, plan.shape[1])
-        nz_edge = self._plan_dist.ravel()[nz] < self._inner_map.ravel()[nz] + cfg.hidden_margin_m
+        nz_edge = self._edge_cells.ravel()[nz]
         # cells of the group's tall parts (the vehicle, not low structure it was closed with)
         nz_tall = (tall.ravel()[nz] > 0) if tall is not None else np.ones(len(nz), bool)
         out: list[Detection] = []
@@ -1060,7 +1073,7 @@ class VehicleDetector:
             xy = self.plan.to_road(np.array([r]), np.array([c]))[0]
             rng = float(np.hypot(*xy))
             bearing = float(np.arctan2(xy[1], xy[0]))
-            hidden = rng < self.inner_edge_range(bearing) + cfg.hidden_margin_m
+            hidden = bool(self._edge_cells[r, c])
             box = None
             # apparent height: a point at height z, range d is drawn at d h / (h - z)
             height = self.mount.height_m * (1.0 - rng / max(far[g], rng))

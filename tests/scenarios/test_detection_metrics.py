@@ -385,6 +385,28 @@ def test_breakdown_counts_by_band_sector_motion_and_ego_state():
     assert ego["stopped"]["detection"]["recall"] == 1.0
 
 
+def test_unmatched_hypotheses_split_into_duplicate_misplaced_and_clutter():
+    ahead = GtVehicle.from_box(1, 10.0, 0.0, 4.0, 2.0, 0.0)  # footprint x 8..12, y -1..1
+    frames = [
+        EvalFrame(
+            [ahead],
+            [
+                (1, 8.0, 0.0),  # matched (on the footprint)
+                (2, 7.0, 0.5),  # 1.0 m off, the vehicle already matched: duplicate
+                (3, 8.5, 4.0),  # 3.0 m beside it: misplaced
+                (4, 10.0, 6.9),  # 5.9 m: clutter
+            ],
+        ),
+        EvalFrame([], [(5, 3.0, 3.0)]),  # no vehicle in the frame: clutter
+    ]
+    u = breakdown(frames)["unmatched"]
+    assert (u["hyp_count"], u["unmatched"]) == (5, 4)
+    assert (u["duplicate"], u["misplaced"], u["clutter"]) == (1, 1, 2)
+    assert u["clutter_share"] == pytest.approx(0.5)
+    none_unmatched = breakdown([EvalFrame([ahead], [(1, 8.0, 0.0)])])["unmatched"]
+    assert none_unmatched["unmatched"] == 0 and math.isnan(none_unmatched["clutter_share"])
+
+
 def test_recall_polar_places_each_vehicle_once_by_range_and_bearing():
     ahead, left = car(1, 8.0, 0.0), car(2, 0.0, 4.0)
     frames = [EvalFrame([ahead, left], [seen(ahead, 10)]), EvalFrame([left], [])]

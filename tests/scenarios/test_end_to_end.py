@@ -54,13 +54,17 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     }  # fmt: skip
     sur = m["surround"]  # where detection fails: every breakdown, for tracks and detections
     for part in ("tracks", "detections"):
-        assert set(sur[part]) == {"range_bands", "sectors", "motion", "ego_state"}
+        assert set(sur[part]) == {"range_bands", "sectors", "motion", "unmatched", "ego_state"}
         bands = sur[part]["range_bands"]
         assert list(bands) == ["0-5 m", "5-10 m", "10-15 m", "15-25 m"]
         assert sum(b["gt_count"] for b in bands.values()) == m["detection"]["gt_count"]
         assert sur[part]["ego_state"]["moving"]["frames"] >= 20
+        u = sur[part]["unmatched"]  # every unmatched point is one of the three kinds
+        assert u["unmatched"] == u["duplicate"] + u["misplaced"] + u["clutter"]
+        assert u["hyp_count"] == sum(b["hyp_count"] for b in bands.values())
     assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
     assert "by motion relative to the ego car" in (out / "report.html").read_text()
+    assert "what the unmatched track points are" in (out / "report.html").read_text()
     seg = sur["segmentation"]  # the motion mask against the true vehicle pixels
     assert seg["frames"] == 23 and seg["vehicle_px"] > 0 and seg["marked_px"] > 0
     assert 0.0 < seg["pixel_recall"] < 1.0 and 0.0 < seg["pixel_precision"] <= 1.0

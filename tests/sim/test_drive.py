@@ -2,10 +2,11 @@
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
-from estimator.camera.files import load_camera
+from estimator.camera.files import load_body_mask, load_camera
 from estimator.fileio import read_png
 from sim import drive as drive_mod
 from sim.drive import DriveError, load_groundtruth, render_drive
@@ -64,6 +65,25 @@ def test_outputs_complete(drive_dir):
     assert img[0, 0].max() == 0
     assert img[100, 190].max() > 0 or img[190, 100].max() > 0
     assert not list(drive_dir.rglob(".*.png")), "temp files left behind"
+
+
+def test_body_mask_is_the_ego_cars_pixels(drive_dir):
+    """``body_mask.png``: frame 0's ego-car pixels (id 0, written as 1); in later frames
+    the body differs only at its edge (the camera's vibration moves it by a pixel); a
+    complete render made without one gets it on the next call."""
+    cam, _ = load_camera(drive_dir / "camera.yaml")
+    body = load_body_mask(drive_dir / "body_mask.png", cam)
+    np.testing.assert_array_equal(body, read_png(drive_dir / "ids" / "000000.png") == 1)
+    edge = cv2.dilate(body.astype(np.uint8), np.ones((5, 5), np.uint8)) > cv2.erode(
+        body.astype(np.uint8), np.ones((5, 5), np.uint8)
+    )
+    for k in range(1, N):
+        off = body != (read_png(drive_dir / "ids" / f"{k:06d}.png") == 1)
+        assert off.sum() < 0.02 * body.sum() and not (off & ~edge).any(), k
+    assert body[100, 100] and not body[0, 0]  # the roof under the mirror, not the rim
+    (drive_dir / "body_mask.png").unlink()
+    render_drive(tiny(), drive_dir, progress=False)
+    np.testing.assert_array_equal(load_body_mask(drive_dir / "body_mask.png", cam), body)
 
 
 def test_vehicles_land_on_their_id_pixels(drive_dir):

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -13,6 +14,7 @@ from estimator.camera.files import (
     PRESETS_DIR,
     CameraFileError,
     camera_to_dict,
+    load_body_mask,
     load_camera,
     preset_names,
     resolve_camera,
@@ -262,3 +264,21 @@ def test_resolve_errors():
         resolve_camera({"preset": "omni-near", "max_elevation_deg": 70.0})
     with pytest.raises(ValueError, match=r"preset 'omni-near'.*mount height"):
         resolve_camera({"preset": "omni-near", "mount_height_m": -1.0})
+
+
+# ------------------------------------------------------------------ body mask
+def test_body_mask_file_round_trip_and_errors(tmp_path):
+    cam, _ = load_camera("omni-near")
+    body = np.zeros((cam.height, cam.width), np.uint8)
+    body[300:340, 290:350] = 255
+    path = tmp_path / "body_mask.png"
+    cv2.imwrite(str(path), body)
+    np.testing.assert_array_equal(load_body_mask(path, cam), body > 0)
+    cv2.imwrite(str(tmp_path / "small.png"), body[:100])
+    with pytest.raises(CameraFileError, match=r"small.png: body mask is 640x100"):
+        load_body_mask(tmp_path / "small.png", cam)
+    cv2.imwrite(str(tmp_path / "empty.png"), body * 0)
+    with pytest.raises(CameraFileError, match="empty.png: body mask marks no pixel"):
+        load_body_mask(tmp_path / "empty.png", cam)
+    with pytest.raises(CameraFileError, match="missing.png: cannot read"):
+        load_body_mask(tmp_path / "missing.png", cam)

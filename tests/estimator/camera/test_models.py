@@ -273,6 +273,25 @@ def test_omni_centre_sees_straight_down_and_is_masked():
     assert not cam.valid_rays(roof_edge).any()
 
 
+def test_body_mask_replaces_the_body_cone():
+    """`with_body_mask`: the valid pixels are the field of view less the given body
+    pixels, wherever the cone was; rays and projection are unchanged."""
+    cam, _ = load_camera("omni-near")
+    nadir_deg = np.degrees(np.arccos(np.clip(cam.pixel_rays()[..., 2], -1.0, 1.0)))
+    body = nadir_deg < 60.0  # a body smaller than the 75-deg cone
+    seen = cam.with_body_mask(body)
+    mask = seen.valid_mask()
+    assert not (mask & body).any()
+    ring = (nadir_deg > 61.0) & (nadir_deg < 74.0)  # hidden by the cone, not by the body
+    assert mask[ring].all() and not cam.valid_mask()[ring].any()
+    beyond = ~body & ~ring & cam.valid_mask()  # the rest of the view is as before
+    assert mask[beyond].all()
+    np.testing.assert_array_equal(seen.pixel_rays(), cam.pixel_rays())
+    assert seen.to_dict()["body_mask_deg"] == 0.0 and cam.body_mask_deg == 75.0
+    with pytest.raises(ValueError, match="body mask must be"):
+        cam.with_body_mask(body[:10])
+
+
 @pytest.mark.parametrize("name,elev", [("omni-near", 5.0), ("omni-far", 15.0)])
 def test_rim_sits_8px_inside_the_image(name, elev):
     cam, _ = load_camera(name)

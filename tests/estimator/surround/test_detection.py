@@ -235,6 +235,40 @@ def test_blob_without_tall_part_is_not_a_candidate():
     assert not cand.hidden
 
 
+def test_body_mask_shows_the_road_up_to_the_body_and_hides_what_meets_it():
+    """With the body's silhouette in place of the 75-deg cone (`with_body_mask`), the
+    analysed area reaches the body, and a blob is hidden when its nearest point sees a
+    pixel next to the body (the vehicle goes on behind it), not by its range."""
+    cam, mount = load_camera("omni-near")
+    nadir_deg = np.degrees(np.arccos(np.clip(cam.pixel_rays()[..., 2], -1.0, 1.0)))
+    body = nadir_deg < 60.0  # the road is seen from h tan(60 deg) = 3.4 m
+    cone = VehicleDetector(cam, mount, DetectorConfig())
+    det = VehicleDetector(cam.with_body_mask(body), mount, DetectorConfig())
+    ring = (nadir_deg > 62.0) & (nadir_deg < 73.0)  # road 3.7-6.4 m away
+    assert det.analysed_area[ring].mean() > 0.99 and not cone.analysed_area[ring].any()
+    assert not (det.analysed_area & body).any()
+
+    def nearest_at(d, r0_m):  # a tall block 1 m wide, from r0_m to 30 m at bearing -60 deg
+        plan = np.zeros((d.plan.size,) * 2, np.uint8)
+        b = np.radians(-60.0)
+        for r in np.arange(r0_m, 30.0, 0.1):
+            for w in np.arange(-0.5, 0.51, 0.1):
+                xy = [r * np.cos(b) - w * np.sin(b), r * np.sin(b) + w * np.cos(b)]
+                c, rr = np.round(d.plan.to_pixel([xy])[0]).astype(int)
+                plan[rr, c] = 255
+        u, v = np.round(d.plan.map_x).astype(int), np.round(d.plan.map_y).astype(int)
+        seen = (u >= 0) & d.analysed_area[v.clip(0, cam.height - 1), u.clip(0, cam.width - 1)]
+        plan[~seen] = 0  # what the analysed area shows of it
+        (cand,) = d._blobs(plan, plan)
+        return cand
+
+    assert nearest_at(det, 3.0).hidden  # reaches the body: its ground point is hidden
+    far = nearest_at(det, 5.0)  # inside the cone's 7.3 m, but seen from the road
+    assert not far.hidden and abs(np.hypot(far.x_m, far.y_m) - 5.0) < 0.3
+    hid = nearest_at(cone, 5.0)  # the cone hides its ground point: seen from ~7.3 m
+    assert hid.hidden and np.hypot(hid.x_m, hid.y_m) < 7.3
+
+
 def _face(p0, p1, step_m=0.02):
     """Points along the road segment p0 -> p1 [m]."""
     t = np.arange(0.0, 1.0 + 1e-9, step_m / np.hypot(*np.subtract(p1, p0)))[:, None]
