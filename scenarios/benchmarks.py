@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from estimator.camera.files import BODY_MASK_FILE, load_body_mask, load_camera
+from estimator.camera.files import load_camera, with_folder_body_mask
 from estimator.egomotion.bench import time_steps
 from estimator.fileio import read_png
 from estimator.frame_times import FrameTimes
@@ -56,10 +56,7 @@ def bench_detect(
     render_drive(sc, out, progress=True)
     gt = load_groundtruth(out)
     cam, mount = load_camera(out / "camera.yaml")
-    body = out / BODY_MASK_FILE  # as `omnibench run` analyses a drive
-    sa = SurroundAnalyzer(
-        cam.with_body_mask(load_body_mask(body, cam)) if body.exists() else cam, mount
-    )
+    sa = SurroundAnalyzer(with_folder_body_mask(cam, out), mount)  # as `omnibench run`
     images = [read_png(out / "frames" / f"{k:06d}.png") for k in range(len(gt))]
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)

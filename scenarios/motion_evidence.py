@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.camera.files import load_camera
+from estimator.camera.files import load_camera, with_folder_body_mask
 from estimator.camera.models import CameraModel
 from estimator.fileio import read_png
 from estimator.geometry import rot_z
@@ -92,7 +92,7 @@ def drive_evidence(
     if baseline < 1 or every < 1:
         raise ValueError(f"baseline and every must be >= 1, got {baseline}, {every}")
     camera, mount = load_camera(drive_dir / "camera.yaml")
-    det = VehicleDetector(camera, mount, _DETECTOR)
+    det = VehicleDetector(with_folder_body_mask(camera, drive_dir), mount, _DETECTOR)
     area = det.analysed_area & det.comp.road_mask(1)
     rays = camera_unit_rays(camera)
     gt = load_groundtruth(drive_dir)

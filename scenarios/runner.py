@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.camera.files import BODY_MASK_FILE, load_body_mask, load_camera
+from estimator.camera.files import load_camera, with_folder_body_mask
 from estimator.egomotion.baselines import check_estimator, make_estimator
 from estimator.egomotion.homography import homography, make_state
 from estimator.fileio import write_json, write_png
@@ -165,9 +165,8 @@ def run_scenario(
     can = read_can_csv(drive_dir / "can.csv")
     det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
     est = make_estimator(estimator, camera, mount)
-    body = drive_dir / BODY_MASK_FILE  # surround analysis sees the road up to the body
-    seen = camera.with_body_mask(load_body_mask(body, camera)) if body.exists() else camera
-    surround = make_surround(detector, seen, mount, det_cfg)
+    # surround analysis sees the road up to the car body's silhouette
+    surround = make_surround(detector, with_folder_body_mask(camera, drive_dir), mount, det_cfg)
     # the motion mask against the vehicles' true pixels (built-in detectors have one)
     audit = (
         SegmentationAudit(surround.detector.analysed_area)

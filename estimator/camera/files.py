@@ -333,6 +333,13 @@ def load_body_mask(path: str | os.PathLike, camera: CameraModel) -> np.ndarray:
     return body
 
 
+def with_folder_body_mask(camera: CameraModel, folder: str | os.PathLike) -> CameraModel:
+    """``camera`` with the car-body mask that a folder holds (``folder/body_mask.png``, as
+    a rendered drive does; `CameraModel.with_body_mask`), else ``camera`` itself."""
+    path = Path(folder) / BODY_MASK_FILE
+    return camera.with_body_mask(load_body_mask(path, camera)) if path.exists() else camera
+
+
 def save_camera(path: str | os.PathLike, camera: CameraModel, mount: CameraMount) -> Path:
     """Write a camera file atomically (temporary file in the same folder + os.replace)."""
     path = Path(path)

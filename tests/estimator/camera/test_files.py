@@ -19,6 +19,7 @@ from estimator.camera.files import (
     preset_names,
     resolve_camera,
     save_camera,
+    with_folder_body_mask,
 )
 from estimator.camera.models import HyperbolicCamera, PinholeCamera
 from estimator.camera.mount import CameraMount
@@ -274,6 +275,9 @@ def test_body_mask_file_round_trip_and_errors(tmp_path):
     path = tmp_path / "body_mask.png"
     cv2.imwrite(str(path), body)
     np.testing.assert_array_equal(load_body_mask(path, cam), body > 0)
+    seen = with_folder_body_mask(cam, tmp_path)  # the folder holds body_mask.png
+    assert not seen.valid_mask()[body > 0].any() and seen.valid_mask()[10, 320]
+    assert with_folder_body_mask(cam, tmp_path / "none") is cam  # a folder without one
     cv2.imwrite(str(tmp_path / "small.png"), body[:100])
     with pytest.raises(CameraFileError, match=r"small.png: body mask is 640x100"):
         load_body_mask(tmp_path / "small.png", cam)
