@@ -117,6 +117,37 @@ def test_estimate_takes_road_masks_and_names_bad_ones(tmp_path):
     assert len((tmp_path / "o" / "egomotion.csv").read_text().splitlines()) == 4
 
 
+def test_estimate_takes_a_body_mask_and_names_a_bad_one(tmp_path):
+    """--body-mask: a PNG of the camera's size; another size is named before any frame is
+    read; a good one runs the surround analysis to its tracks."""
+    cam, _ = load_camera("omni-near")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(4)
+    for k in range(3):
+        img = rng.integers(0, 255, (cam.height, cam.width), dtype=np.uint8)
+        cv2.imwrite(str(frames / f"{k:06d}.png"), img)
+    can = tmp_path / "can.csv"
+    can.write_text("t_s,speed_mps\n0,10\n1,10\n")
+    body = np.zeros((cam.height, cam.width), np.uint8)
+    body[200:440, 260:380] = 255  # a car body under the mirror
+    cv2.imwrite(str(tmp_path / "small.png"), body[:100])
+    cv2.imwrite(str(tmp_path / "body.png"), body)
+
+    def estimate(mask):
+        return omnibench(
+            "estimate", str(frames), "--camera", "omni-near", "--can", str(can), "--fps", "15",
+            "--out", str(tmp_path / "o"), "--body-mask", str(tmp_path / mask),
+        )  # fmt: skip
+
+    proc = estimate("small.png")
+    assert proc.returncode == 2 and "small.png: body mask is 640x100" in proc.stderr
+    assert not (tmp_path / "o").exists()
+    proc = estimate("body.png")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "o" / "tracks.csv").exists()
+
+
 def test_set_parses_dotted_keys_and_yaml_values():
     got = parse_settings(["road_appearance=true", "filter.A_tau_s=0.5", "iterations=[3, 2, 2, 1]"])
     assert got == {"road_appearance": True, "filter": {"A_tau_s": 0.5}, "iterations": [3, 2, 2, 1]}
