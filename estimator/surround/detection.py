@@ -523,16 +523,11 @@ class VehicleDetector:
         """(H, W) bool: the field of view less border_margin_px inside its outer rim and
         inner_margin_px around its holes (the car-body mask)."""
         v = np.asarray(valid, np.uint8)
-        filled = ndimage.binary_fill_holes(v > 0).astype(np.uint8)
-        hole = filled & (1 - v)
-
-        def disk(r_px: int) -> np.ndarray:
-            return np.ones((2 * max(0, int(r_px)) + 1,) * 2, np.uint8)
-
+        filled, hole = _fill_and_holes(v)
         outer = cv2.erode(
-            filled, disk(cfg.border_margin_px), borderType=cv2.BORDER_CONSTANT, borderValue=0
+            filled, _square(cfg.border_margin_px), borderType=cv2.BORDER_CONSTANT, borderValue=0
         )
-        inner = cv2.dilate(hole, disk(cfg.inner_margin_px))
+        inner = cv2.dilate(hole, _square(cfg.inner_margin_px))
         return (outer > 0) & (inner == 0) & (v > 0)
 
     def _inner_edge(self) -> np.ndarray:
@@ -551,10 +546,9 @@ class VehicleDetector:
         """(S, S) bool: plan cells whose pixel lies within inner_margin_px +
         hidden_margin_px of the car-body mask (the holes of the field of view), where a
         blob's nearest point says that the vehicle goes on behind the body."""
-        v = np.asarray(self.camera.valid_mask(), np.uint8)
-        hole = (ndimage.binary_fill_holes(v > 0) & (v == 0)).astype(np.uint8)
+        _, hole = _fill_and_holes(np.asarray(self.camera.valid_mask(), np.uint8))
         r = self.cfg.inner_margin_px + self.cfg.hidden_margin_px
-        near = cv2.dilate(hole, np.ones((2 * r + 1,) * 2, np.uint8)) > 0
+        near = cv2.dilate(hole, _square(r)) > 0
         mx, my = self.plan.map_x, self.plan.map_y
         u = np.clip(np.round(mx).astype(int), 0, near.shape[1] - 1)
         w = np.clip(np.round(my).astype(int), 0, near.shape[0] - 1)
@@ -1132,6 +1126,18 @@ class VehicleDetector:
                 )
             )
         return out
+
+
+def _fill_and_holes(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(filled, holes), (H, W) uint8 0/1, of a field of view (H, W) uint8 0/1: the view
+    with its holes filled, and the holes alone (the car-body mask)."""
+    filled = ndimage.binary_fill_holes(valid > 0).astype(np.uint8)
+    return filled, filled & (1 - valid)
+
+
+def _square(r_px: int) -> np.ndarray:
+    """(2r + 1, 2r + 1) uint8 structuring element reaching r_px [px] (0 or more)."""
+    return np.ones((2 * max(0, int(r_px)) + 1,) * 2, np.uint8)
 
 
 def _label_boxes(cells: np.ndarray, labels: np.ndarray, n: int, width: int) -> np.ndarray:

@@ -83,18 +83,26 @@ def test_estimate_bad_inputs_are_named(tmp_path):
     assert proc.returncode == 2 and "nocam" in proc.stderr
 
 
-def test_estimate_takes_road_masks_and_names_bad_ones(tmp_path):
-    """--road-masks: one PNG per frame; too few, or of another size, is named."""
+def _noise_recording(tmp_path: Path, seed: int) -> tuple[Path, Path]:
+    """(frames folder, CAN file): three frames of grey noise of omni-near's size, 10 m/s."""
     cam, _ = load_camera("omni-near")
-    frames, masks = tmp_path / "frames", tmp_path / "masks"
+    frames = tmp_path / "frames"
     frames.mkdir()
-    masks.mkdir()
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     for k in range(3):
         img = rng.integers(0, 255, (cam.height, cam.width), dtype=np.uint8)
         cv2.imwrite(str(frames / f"{k:06d}.png"), img)
     can = tmp_path / "can.csv"
     can.write_text("t_s,speed_mps\n0,10\n1,10\n")
+    return frames, can
+
+
+def test_estimate_takes_road_masks_and_names_bad_ones(tmp_path):
+    """--road-masks: one PNG per frame; too few, or of another size, is named."""
+    cam, _ = load_camera("omni-near")
+    frames, can = _noise_recording(tmp_path, seed=3)
+    masks = tmp_path / "masks"
+    masks.mkdir()
 
     def estimate():
         return omnibench(
@@ -121,14 +129,7 @@ def test_estimate_takes_a_body_mask_and_names_a_bad_one(tmp_path):
     """--body-mask: a PNG of the camera's size; another size is named before any frame is
     read; a good one runs the surround analysis to its tracks."""
     cam, _ = load_camera("omni-near")
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    rng = np.random.default_rng(4)
-    for k in range(3):
-        img = rng.integers(0, 255, (cam.height, cam.width), dtype=np.uint8)
-        cv2.imwrite(str(frames / f"{k:06d}.png"), img)
-    can = tmp_path / "can.csv"
-    can.write_text("t_s,speed_mps\n0,10\n1,10\n")
+    frames, can = _noise_recording(tmp_path, seed=4)
     body = np.zeros((cam.height, cam.width), np.uint8)
     body[200:440, 260:380] = 255  # a car body under the mirror
     cv2.imwrite(str(tmp_path / "small.png"), body[:100])
