@@ -30,8 +30,15 @@ A vehicle's box. The detector fits a car-sized box to the lower outline it sees
 ambiguous (one face seen: the rear or a side?). A vehicle track that knows the
 direction of its velocity over the ground (at least `heading_min_speed_mps`, std at
 most `heading_max_sigma_rad`) decides it: the outline is fitted again with headings
-within two std of that direction only. The box is reported beside the point (the
-tracked point stays the nearest seen one).
+within two std of that direction only. The box is reported beside the point.
+
+The road a vehicle uncovered. The detector's blob holds, besides the vehicle, the road
+it uncovered over the detector's baseline, and a vehicle driving away from the camera is
+seen up to its own displacement over that baseline nearer than it is. With
+`SurroundConfig.uncovered_road` the tracker measures each candidate that was not refined
+onto the vehicle's own moving edge as the nearest point of the vehicle swept back along its
+ground velocity (`estimator.surround.tracking`): the tracked point is the vehicle's own
+nearest point, and the box fitted to what the camera saw is kept where it was fitted.
 """
 
 from __future__ import annotations
@@ -47,8 +54,13 @@ from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
 from estimator.egomotion.compensation import FrameCompensator
 from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
-from estimator.surround.detection import DetectionFrame, DetectorConfig, VehicleDetector
-from estimator.surround.tracking import Track, Tracker, TrackerConfig
+from estimator.surround.detection import (
+    Detection,
+    DetectionFrame,
+    DetectorConfig,
+    VehicleDetector,
+)
+from estimator.surround.tracking import Track, Tracker, TrackerConfig, swept_measurement
 
 
 @dataclass(frozen=True)
@@ -64,6 +76,9 @@ class SurroundConfig:
     # detection filtered with the earlier ones), not the single-frame detection; a hidden
     # one (bearing only) is reported on its measured bearing at the track's range
     report_filtered: bool = True  # [-]
+    # a detection is the nearest point of the vehicle and the road it uncovered over the
+    # detector's baseline (`estimator.surround.tracking`); False: of the vehicle alone
+    uncovered_road: bool = True  # [-]
     # a vehicle's box heading from its track: the direction of its velocity over the ground,
     # where the track knows it (speed and its std below); else from the box fit alone
     heading_min_speed_mps: float = 3.0  # [m/s] slower tracks: heading from the fit alone
@@ -128,6 +143,7 @@ class SurroundAnalyzer:
         self._steps: deque[tuple[np.ndarray, float]] = deque(maxlen=n)
         self._rate: dict[int, float] = {}  # track id -> hit rate
         self._vehicle: set[int] = set()  # ids of tracks that are vehicles
+        self._baseline_s = 0.0  # [s] the detector's baseline of the current frame
         # track id -> its latest box, relative to the tracked point: (dx, dy) [m], yaw [rad],
         # length, width [m]
         self._box: dict[int, tuple[float, float, float, float, float]] = {}
@@ -170,8 +186,15 @@ class SurroundAnalyzer:
         )
         cands = det.candidates
         xy = np.array([[d.x_m, d.y_m] for d in cands]).reshape(-1, 2)
+        self._baseline_s = sum(dt for _, dt in steps)
         self.tracker.step(
-            t_s, xy, speed_mps, yaw_rate_rps, extras=cands, bearing_only=[d.hidden for d in cands]
+            t_s,
+            xy,
+            speed_mps,
+            yaw_rate_rps,
+            extras=cands,
+            bearing_only=[d.hidden for d in cands],
+            swept_s=[self._swept_s(d) for d in cands],
         )
         det.detections = self._classify(cands)
         tracks = [
@@ -208,9 +231,12 @@ class SurroundAnalyzer:
                     d.box = fit_box(d.outline_xy, self._box_cfg, yaw, 2 * sigma) or d.box
                 if d.box is not None:
                     b = d.box
+                    # the box where it was fitted: the detection lies the uncovered road
+                    # behind the tracked point
+                    sweep = self._sweep(t, self._swept_s(d))
                     self._box[t.id] = (
-                        b.x_m - d.x_m,
-                        b.y_m - d.y_m,
+                        b.x_m - d.x_m - sweep[0],
+                        b.y_m - d.y_m - sweep[1],
                         b.yaw_rad,
                         b.length_m,
                         b.width_m,
@@ -239,6 +265,20 @@ class SurroundAnalyzer:
         if sigma > self.cfg.heading_max_sigma_rad:
             return None
         return math.atan2(v[1], v[0]), sigma
+
+    def _swept_s(self, det: Detection) -> float:
+        """[s] the time over which ``det``'s point may lie on the road its vehicle uncovered
+        (`Tracker.step`): the baseline (uncovered_road), but 0 for a refined point, which
+        lies on the vehicle's own moving edge (`VehicleDetector._refine`)."""
+        if not self.cfg.uncovered_road or det.outline_xy is not None:
+            return 0.0
+        return self._baseline_s
+
+    @staticmethod
+    def _sweep(track: Track, swept_s: float) -> np.ndarray:
+        """(2,) [m] the tracked point less where it expects a detection (`swept_measurement`)."""
+        H = swept_measurement(track.x[None], np.array([swept_s]))[0, 0]
+        return track.x[:2] - H @ track.x
 
     def track_box(self, track: Track) -> Box | None:
         """The vehicle box of a track (its latest fitted box, kept at the same offset from

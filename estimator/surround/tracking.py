@@ -65,6 +65,18 @@ vehicle length (`TrackerConfig.vehicle_length_m`) away from the camera along x;
 such a detection updates the track with ``z - o e_x`` (the body point it saw,
 moved back to the tracked point).
 
+Detections on the road a vehicle uncovered. A two-frame motion test marks, besides a
+moving vehicle, the road it uncovered over the baseline ``Δt_b``: no earlier frame saw that
+road, so no hypothesis explains it. The marked region is the vehicle's footprint swept back
+along its ground velocity ``v`` over ``Δt_b``, and its nearest point lies up to ``|v| Δt_b``
+behind the vehicle's (2.7 m at 20 m/s over two frames at 15 Hz): a vehicle ahead is seen
+that far nearer than it is. With ``swept_s = Δt_b`` such a detection measures
+``h(x) = p - σ v``, ``σ = clip(p·v / |v|², 0, Δt_b)`` (`swept_measurement`): the whole
+sweep where the range falls along all of it, the foot of the perpendicular from the camera
+where it passes alongside, none where the vehicle drives towards the camera. ``H = [I, -σ I]``
+with σ taken at the prior, so the filter stays linear; a track born from such a detection
+starts ``Δt_b v0`` ahead of it. The track's point is then the vehicle's own nearest point.
+
 Per frame (`Tracker.step`): change of frame and prediction of every track;
 cost matrix ``d²`` with a gate (``d² > gate_chi2`` or ``|ν| > gate_m``: never
 assigned); assignment by `scipy.optimize.linear_sum_assignment`, then of the
@@ -295,6 +307,28 @@ def cv_transition(dt_s: float, accel_psd: float) -> tuple[np.ndarray, np.ndarray
 _H = np.hstack([np.eye(2), np.zeros((2, 2))])  # (2, 4) position measurement
 
 
+def swept_measurement(X: np.ndarray, swept_s: np.ndarray) -> np.ndarray:
+    """(T, N, 2, 4) measurement matrices of tracks X (T, 4) for detections that are the
+    nearest point of the road each vehicle covered over the last swept_s (N,) [s].
+
+    A moving vehicle's motion mask holds the road it uncovered over the baseline: its
+    footprint swept back along its ground velocity v over swept_s. Where that carries
+    its nearest point nearer the camera (p . v > 0), the measured point is
+    ``p - sigma v``, sigma = clip(p . v / |v|², 0, swept_s): the whole sweep when the
+    range falls all along it, else the foot of the perpendicular from the camera
+    (a box alongside). H = [I, -sigma I], sigma taken at the prior (its own dependence
+    on the state left out); swept_s = 0 gives [I 0].
+    """
+    p, v = X[:, :2], X[:, 2:]
+    v2 = np.maximum(np.einsum("ti,ti->t", v, v), 1e-9)
+    along = np.einsum("ti,ti->t", p, v) / v2  # (T,) [s] of the sweep to the foot
+    sigma = np.clip(along[:, None], 0.0, np.asarray(swept_s, float)[None, :])  # (T, N)
+    H = np.zeros((len(X), len(swept_s), 2, 4))
+    H[..., 0, 0] = H[..., 1, 1] = 1.0
+    H[..., 0, 2] = H[..., 1, 3] = -sigma
+    return H
+
+
 # ------------------------------------------------------------------ tracks
 @dataclass
 class Track:
@@ -441,25 +475,26 @@ class Tracker:
         track.P = F @ P @ F.T + Q
         track.P = 0.5 * (track.P + track.P.T)
 
-    def _update(self, track: Track, z: np.ndarray, R: np.ndarray) -> np.ndarray:
+    def _update(self, track: Track, z: np.ndarray, R: np.ndarray, H: np.ndarray = _H) -> np.ndarray:
         # ν = z - H x⁻ ; S = H P⁻ Hᵀ + R ; K = P⁻ Hᵀ S⁻¹
-        nu = z - _H @ track.x
-        S = _H @ track.P @ _H.T + R
-        K = np.linalg.solve(S, _H @ track.P).T  # P⁻ Hᵀ S⁻¹ (S, P symmetric)
+        nu = z - H @ track.x
+        S = H @ track.P @ H.T + R
+        K = np.linalg.solve(S, H @ track.P).T  # P⁻ Hᵀ S⁻¹ (S, P symmetric)
         # x = x⁻ + K ν ; P = (I - K H) P⁻ (I - K H)ᵀ + K R Kᵀ (Joseph form)
         track.x = track.x + K @ nu
-        IKH = np.eye(4) - K @ _H
+        IKH = np.eye(4) - K @ H
         track.P = IKH @ track.P @ IKH.T + K @ R @ K.T
         track.P = 0.5 * (track.P + track.P.T)
         return nu
 
     def _gated_d2(
-        self, x_prior: np.ndarray, S_inv: np.ndarray, z_all: np.ndarray, bo: np.ndarray
+        self, z_pred: np.ndarray, S_inv: np.ndarray, z_all: np.ndarray, bo: np.ndarray
     ) -> np.ndarray:
-        """(T, N) d² of the detections z_all (N, 2) to the points x_prior (T, 2) with
-        inverse innovation covariances S_inv (T, N, 2, 2); inf beyond either gate."""
+        """(T, N) d² of the detections z_all (N, 2) to the predicted measurements
+        z_pred (T, N, 2) with inverse innovation covariances S_inv (T, N, 2, 2); inf
+        beyond either gate."""
         cfg = self.config
-        nu = z_all[None, :, :] - x_prior[:, None, :]  # (T, N, 2) ν = z - H x⁻
+        nu = z_all[None, :, :] - z_pred  # (T, N, 2) ν = z - H x⁻
         d2 = np.einsum("tni,tnij,tnj->tn", nu, S_inv, nu)  # d² = νᵀ S⁻¹ ν
         if cfg.gate_m is not None:
             # metric gate; a hidden detection's range is not known: its range error
@@ -497,13 +532,18 @@ class Tracker:
         along, across = self.config.hidden_range_sigma_m, r * self.config.bearing_sigma_rad
         return along**2 * np.outer(u, u) + across**2 * np.outer(v, v)
 
-    def _birth(self, z: np.ndarray, R: np.ndarray, s: float, u: float, extra: Any) -> Track:
+    def _birth(
+        self, z: np.ndarray, R: np.ndarray, s: float, u: float, extra: Any, swept_s: float = 0.0
+    ) -> Track:
         cfg = self.config
         v0 = np.array([s, u]) if cfg.init_velocity_from_ego else np.zeros(2)
         P0 = np.zeros((4, 4))
         P0[:2, :2] = R
         P0[2:, 2:] = cfg.init_velocity_sigma_mps**2 * np.eye(2)
-        track = Track(id=self._next_id, x=np.concatenate([z, v0]), P=P0, extra=extra)
+        # a point on the road the vehicle uncovered: the vehicle is swept_s v0 ahead of it
+        # (the inverse of `swept_measurement` where the range falls along the whole sweep)
+        p0 = z + swept_s * v0 if float(z @ v0) > 0 else z
+        track = Track(id=self._next_id, x=np.concatenate([p0, v0]), P=P0, extra=extra)
         self._next_id += 1
         return track
 
@@ -518,6 +558,7 @@ class Tracker:
         extras: Sequence[Any] | None = None,
         ego_lateral_speed_mps: float = 0.0,
         bearing_only: Sequence[bool] | None = None,
+        swept_s: Sequence[float] | None = None,
     ) -> list[Track]:
         """Process one frame; return the confirmed tracks after the update, by id.
 
@@ -527,7 +568,9 @@ class Tracker:
         from the previous frame to this one [m/s], [rad/s] (ignored on the first
         frame). extras: optional per-detection info (length N), kept on the track
         it updates or creates. bearing_only: optional (N,) flags: that detection's
-        ground point is hidden, its range is uncertain (module docstring).
+        ground point is hidden, its range is uncertain (module docstring). swept_s:
+        optional (N,) [s]: the detection is the nearest point of the road a vehicle
+        covered over this time before the frame (module docstring); 0: of the vehicle.
         Returned tracks include confirmed tracks that missed this frame
         (``misses > 0``: coasting on their prediction).
         """
@@ -555,6 +598,11 @@ class Tracker:
                 raise ValueError(
                     f"bearing_only must have one flag per detection ({n_det}), got {len(bo)}"
                 )
+        sw = np.zeros(n_det) if swept_s is None else np.asarray(swept_s, float).reshape(-1)
+        if len(sw) != n_det or not np.all(np.isfinite(sw) & (sw >= 0)):
+            raise ValueError(
+                f"swept_s must hold one finite time >= 0 per detection ({n_det}), got {swept_s!r}"
+            )
         if self._t_prev is not None and not t_s > self._t_prev:
             raise ValueError(f"t_s must increase: got {t_s} after {self._t_prev}")
         s, w, u = float(ego_speed_mps), float(ego_yaw_rate_rps), float(ego_lateral_speed_mps)
@@ -586,14 +634,20 @@ class Tracker:
         d2 = np.full((n_trk, n_det), np.inf)
         d2_body = np.full((n_trk, n_det), np.inf)
         offset_m = np.zeros((n_trk, n_det))  # [m] along x: where on the body z was seen
+        H = np.broadcast_to(_H, (n_trk, n_det, 2, 4)).copy()  # per pair: swept_measurement
         if n_trk and n_det:
-            x_prior = np.array([t.x[:2] for t in self._tracks])  # (T, 2)
-            P_pos = np.array([t.P[:2, :2] for t in self._tracks])  # (T, 2, 2)
-            S = P_pos[:, None] + np.array(Rs)[None]  # (T, N, 2, 2) S = H P⁻ Hᵀ + R
+            X = np.array([t.x for t in self._tracks])  # (T, 4)
+            x_prior = X[:, :2]
+            P = np.array([t.P for t in self._tracks])  # (T, 4, 4)
+            H = swept_measurement(X, sw)
+            z_pred = np.einsum("tnij,tj->tni", H, X)  # (T, N, 2) H x⁻
+            HP = np.einsum("tnij,tjk->tnik", H, P)
+            S = np.einsum("tnik,tnjk->tnij", HP, H) + np.array(Rs)[None]  # H P⁻ Hᵀ + R
             S_inv = np.linalg.inv(S)  # once: the body's points share it
-            d2 = self._gated_d2(x_prior, S_inv, z_all, bo)
+            d2 = self._gated_d2(z_pred, S_inv, z_all, bo)
             for o, sel in self._body_offsets(x_prior[:, 0]):
-                d2_o = self._gated_d2(x_prior + np.outer(sel * o, [1.0, 0.0]), S_inv, z_all, bo)
+                shift = np.outer(sel * o, [1.0, 0.0])[:, None, :]
+                d2_o = self._gated_d2(z_pred + shift, S_inv, z_all, bo)
                 better = (d2_o < d2_body) & sel[:, None]
                 d2_body = np.where(better, d2_o, d2_body)
                 offset_m = np.where(better, o, offset_m)
@@ -614,7 +668,7 @@ class Tracker:
             track = self._tracks[i]
             # the detection measures the body point at offset_m: the track's point is there
             z_point = z_all[j] - np.array([offset_m[i, j], 0.0])
-            rec.innovations[track.id] = self._update(track, z_point, Rs[j])
+            rec.innovations[track.id] = self._update(track, z_point, Rs[j], H[i, j])
             rec.assignments.append((track.id, j, float(d2[i, j])))
             track.hits += 1
             track.misses = 0
@@ -654,7 +708,8 @@ class Tracker:
             if len(self._tracks) >= cfg.max_tracks:
                 rec.refused_births.append(j)
                 continue
-            track = self._birth(z_all[j], Rs[j], s, u, None if extras is None else extras[j])
+            extra = None if extras is None else extras[j]
+            track = self._birth(z_all[j], Rs[j], s, u, extra, float(sw[j]))
             if cfg.confirm_hits <= 1:
                 track.confirmed = True
                 rec.confirmations.append(track.id)

@@ -14,6 +14,7 @@ from estimator.surround.detection import Detection, DetectionFrame
 from tests.estimator.surround.test_boxfit import seen_outline
 
 DT = 1.0 / 15.0  # [s]
+OWN_POINT = SurroundConfig(uncovered_road=False)  # candidates at their vehicle's own point
 SPEED = 20.0  # [m/s] ego
 X = make_state([0.0, -SPEED, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])  # omni: Y is back
 
@@ -73,7 +74,7 @@ def test_steady_vehicle_is_reported_flickering_clutter_is_not(omni):
     appears at random places about every other frame (the structure a rendered
     roadside produces). Only the vehicle is reported, from vehicle_min_hits on."""
     cam, mount = omni
-    cfg = SurroundConfig()
+    cfg = SurroundConfig(uncovered_road=False)  # the candidates: the vehicle's own point
     sa = SurroundAnalyzer(cam, mount, surround=cfg)
     rng = np.random.default_rng(0)
     n = 60
@@ -169,7 +170,7 @@ def test_vehicle_box_is_carried_with_its_track(omni):
     moves with the reported (filtered) point; a track without a box has none."""
     from estimator.surround.boxfit import Box
 
-    sa = SurroundAnalyzer(*omni)
+    sa = SurroundAnalyzer(*omni, surround=OWN_POINT)
     frames = []
     for k in range(15):
         d = _det(12.0 + 0.1 * k, 3.0)
@@ -193,7 +194,7 @@ def test_box_heading_from_the_track(omni):
     from the point it is reported with."""
     from estimator.surround.boxfit import Box
 
-    sa = SurroundAnalyzer(*omni)
+    sa = SurroundAnalyzer(*omni, surround=OWN_POINT)
     yaw, ground_speed = 0.6, 12.0
     vel = np.array([ground_speed * math.cos(yaw) - SPEED, ground_speed * math.sin(yaw)])
     offsets, frames = [], []  # the true centre from the detected point
@@ -233,3 +234,28 @@ def test_track_heading_needs_speed_and_certainty(omni):
     assert sa._track_heading(track(slow, 0.0, 1e-4)) is None
     unsure = (cfg.heading_max_sigma_rad * 10.0 * 1.1) ** 2  # [m^2/s^2] at 10 m/s
     assert sa._track_heading(track(8.0, 6.0, unsure)) is None
+
+
+def test_vehicle_ahead_is_placed_in_front_of_the_road_it_uncovered(omni):
+    """A car 15 m ahead at the ego car's speed; each candidate (not refined) is the nearest
+    point of the car and the road it uncovered over the two-frame baseline, 2 * DT * SPEED
+    nearer. It is reported at the car's own point, its fitted box where it was fitted; with
+    uncovered_road off, at the candidate."""
+    from estimator.surround.boxfit import Box
+
+    back = 2 * DT * SPEED  # [m] the road uncovered over the baseline
+    for cfg, want in ((SurroundConfig(), 15.0), (OWN_POINT, 15.0 - back)):
+        sa = SurroundAnalyzer(*omni, surround=cfg)
+        frames = []
+        for _ in range(40):
+            d = _det(15.0 - back, 2.0)
+            d.box = Box(15.0 - back + 2.35, 2.95, 0.0, 4.7, 1.9, 0.01)
+            frames.append([d])
+        sf = _run(sa, frames)
+        (d,) = sf.detection.detections
+        (tr,) = sf.tracks
+        assert (d.x_m, d.y_m) == pytest.approx((want, 2.0), abs=0.05)
+        np.testing.assert_allclose(tr.velocity_xy, [SPEED, 0.0], atol=0.1)
+        box = sa.track_box(tr)
+        assert (box.x_m, box.y_m) == pytest.approx((15.0 - back + 2.35, 2.95), abs=0.05)
+        assert (d.box.x_m, d.box.y_m) == pytest.approx((box.x_m, box.y_m))

@@ -16,6 +16,7 @@ from estimator.surround.tracking import (
     ego_frame_change,
     frame_change_input_jacobian,
     gated_assignment,
+    swept_measurement,
 )
 
 DT = 0.1  # [s] frame interval of the synthetic scenes
@@ -365,3 +366,68 @@ def test_extended_body_does_not_take_a_detection_within_a_point_gate():
     groups = track_to_gt(tr, labels)
     assert all(len(g) == 1 for g in groups.values())
     assert len(tr.confirmed_tracks) == 2
+
+
+# ------------------------------------------------------------------ the road a vehicle uncovered
+def swept_box_nearest(x_rear, y_near, length, width, back_m):
+    """Nearest point to the camera of a box [x_rear - back, x_rear + length] x [y_near,
+    y_near + width] (y_near > 0): the box of a vehicle driving along x and the road it
+    uncovered over the baseline (independent model: the box's own nearest point)."""
+    return np.array([np.clip(0.0, x_rear - back_m, x_rear + length), y_near])
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    x_rear=st.floats(-15.0, 25.0),
+    y_near=st.floats(1.0, 8.0),
+    speed=st.floats(0.5, 35.0),
+    swept=st.floats(0.02, 0.3),
+)
+def test_swept_measurement_is_the_nearest_point_of_the_swept_box(x_rear, y_near, speed, swept):
+    length, width = 4.7, 1.9
+    p = swept_box_nearest(x_rear, y_near, length, width, 0.0)  # the vehicle's nearest point
+    X = np.array([[*p, speed, 0.0]])
+    H = swept_measurement(X, np.array([swept]))[0, 0]
+    expected = swept_box_nearest(x_rear, y_near, length, width, speed * swept)
+    np.testing.assert_allclose(H @ X[0], expected, atol=1e-9)
+
+
+def test_swept_measurement_cases():
+    X = np.array(
+        [
+            [10.0, 0.0, 20.0, 0.0],  # ahead, driving away: the whole sweep
+            [-10.0, 0.0, 20.0, 0.0],  # behind, driving towards the camera: none
+            [1.0, 3.0, 20.0, 0.0],  # alongside: the foot of the perpendicular
+            [10.0, 0.0, 0.0, 0.0],  # parked: none
+        ]
+    )
+    H = swept_measurement(X, np.array([0.1, 0.0]))  # (4, 2, 2, 4)
+    z = np.einsum("tnij,tj->tni", H, X)
+    np.testing.assert_allclose(z[:, 0], [[8.0, 0.0], [-10.0, 0.0], [0.0, 3.0], [10.0, 0.0]])
+    np.testing.assert_allclose(z[:, 1], X[:, :2])  # swept_s = 0: [I 0]
+
+
+def test_track_of_a_vehicle_ahead_finds_it_in_front_of_the_road_it_uncovers():
+    """Each detection is the vehicle's rear swept back by its own displacement over the
+    baseline; with swept_s the track's point is the vehicle's rear, without it lies
+    that displacement behind."""
+    speed, v_car, baseline = 20.0, 25.0, 0.2
+    rear = linear([8.0, 0.0], [v_car, 0.0])  # world: the vehicle's rear, ahead in the lane
+    for swept, off in ((baseline, 0.0), (0.0, -v_car * baseline)):
+        tr = Tracker()
+        rng = np.random.default_rng(3)
+        for k in range(40):
+            t = k * DT
+            z = world_to_ego(rear(t), t, speed, 0.0) - [v_car * baseline, 0.0]
+            tr.step(t, z[None] + 0.05 * rng.standard_normal((1, 2)), speed, 0.0, swept_s=[swept])
+        (track,) = tr.confirmed_tracks
+        p_true = world_to_ego(rear(39 * DT), 39 * DT, speed, 0.0)
+        np.testing.assert_allclose(track.position_xy, p_true + [off, 0.0], atol=0.2)
+        np.testing.assert_allclose(track.velocity_xy, [v_car, 0.0], atol=0.3)
+
+
+def test_swept_times_must_match_detections_and_be_finite():
+    tr = Tracker()
+    for bad in ([0.1, 0.1], [-0.1], [float("nan")]):
+        with pytest.raises(ValueError, match="swept_s"):
+            tr.step(0.0, [[1.0, 2.0]], 0.0, 0.0, swept_s=bad)
