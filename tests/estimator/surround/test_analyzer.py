@@ -74,7 +74,7 @@ def test_steady_vehicle_is_reported_flickering_clutter_is_not(omni):
     appears at random places about every other frame (the structure a rendered
     roadside produces). Only the vehicle is reported, from vehicle_min_hits on."""
     cam, mount = omni
-    cfg = SurroundConfig(uncovered_road=False)  # the candidates: the vehicle's own point
+    cfg = OWN_POINT
     sa = SurroundAnalyzer(cam, mount, surround=cfg)
     rng = np.random.default_rng(0)
     n = 60
