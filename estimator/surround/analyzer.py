@@ -182,7 +182,13 @@ class SurroundAnalyzer:
         self._steps.append((np.asarray(x, float).copy(), float(dt_s)))
         steps = list(self._steps)[-(len(self._frames) - 1) :]
         det = self.detector.detect(
-            small, self._frames[0], steps, gray, self._full[0], vehicle_mask=vehicle_mask
+            small,
+            self._frames[0],
+            steps,
+            gray,
+            self._full[0],
+            vehicle_mask=vehicle_mask,
+            middle_full=self._full[-2] if len(self._full) > 2 else None,
         )
         cands = det.candidates
         xy = np.array([[d.x_m, d.y_m] for d in cands]).reshape(-1, 2)

@@ -158,7 +158,9 @@ class DetectorConfig:
     max_range_m: float = 25.0  # detections farther than this are dropped [m]
     min_range_m: float = 0.0  # detections nearer than this are dropped [m]
     # obstacle map where the ground is hidden (car-body mask)
-    min_height_m: float = 0.8  # [m] a vehicle's moving part reaches at least this height
+    # [m] a vehicle's moving part reaches at least this apparent height, 0.3..1.0 (the
+    # motion test marks a vehicle at half the ego car's speed up to ~0.8 m only)
+    min_height_m: float = 0.5
     # a blob is hidden when its nearest point sees a pixel this close to the analysed area's
     # inner edge (inner_margin_px off the car-body mask): ~0.6 m of road at the cone's edge
     hidden_margin_px: int = 3  # [px], 0..10
@@ -176,6 +178,9 @@ class DetectorConfig:
     refine_weak_threshold: float = 0.1  # [-] m of an edge pixel linked to a moving one
     refine_min_gradient: float = 6.0  # [grey level/px] edge of the current frame
     refine_back_m: float = 3.0  # [m] the refined point may be this much nearer than the coarse
+    # an edge that the road explains against the frame one step back is road the vehicle
+    # uncovered before that frame (lane marks), not the vehicle's edge: left out
+    refine_road_veto: bool = True  # [-]
     # the vehicle's lower contour (nearest moving edge per bearing bin) is fitted with
     # lines (its faces toward the camera) and the fit's nearest point taken: one pixel
     # is ~0.4 m of range at 15 m, about what a face seen nearly end-on changes in range
@@ -602,6 +607,7 @@ class VehicleDetector:
         current_full: np.ndarray | None = None,
         earlier_full: np.ndarray | None = None,
         vehicle_mask: np.ndarray | None = None,
+        middle_full: np.ndarray | None = None,
     ) -> DetectionFrame:
         """Detect in ``current`` against ``earlier`` (both from `prepare`).
 
@@ -612,6 +618,8 @@ class VehicleDetector:
         vehicle_mask: (H, W) bool, full resolution: the pixels that see a vehicle, given
         instead of the motion test (a diagnostic: with the true mask, what the plan view,
         the obstacle map and the tracker reach with a perfect segmentation).
+        middle_full: the frame one step before the current one (full resolution, grey;
+        with two or more steps): the refinement's road veto (`_refine`).
         """
         cfg = self.cfg
         s = cfg.scale
@@ -636,6 +644,12 @@ class VehicleDetector:
         a = np.asarray(current, np.float32)
         if paper:
             return self._detect_paper(a, warped[1.0], ok)
+        # the road's map from the current frame to the one a step back (the road veto)
+        middle = None
+        if cfg.refine_road_veto and middle_full is not None and len(steps) > 1:
+            x, dt = steps[-1]
+            H1 = hypothesis_homography(x, K0, n, dt, 1.0)
+            middle = (np.asarray(middle_full, np.float32), self.comp.maps_h(H1, s, True))
         # 2. motion score at the working scale and one level coarser
         K = cfg.window_px / s
         sigma = cfg.registration_sigma_px / s
@@ -668,7 +682,7 @@ class VehicleDetector:
             moving |= (up > cfg.score_threshold) & ok
             score = np.maximum(score, up)
         # 3. plan view, closing along the motion, blobs, obstacle map
-        plan, cands = self._candidates(moving, score, current_full, earlier_full, Hs)
+        plan, cands = self._candidates(moving, score, current_full, earlier_full, Hs, middle=middle)
         # 4. full-resolution pictures (display)
         w1 = warped[1.0]
 
@@ -715,10 +729,12 @@ class VehicleDetector:
         earlier_full: np.ndarray | None,
         maps: dict[float, tuple[np.ndarray, np.ndarray]],
         given: np.ndarray | None = None,
+        middle: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None,
     ) -> tuple[np.ndarray, list[Detection]]:
         """(plan mask after closing, candidates) of a working-scale motion mask: the plan
         view, its tall parts, the 1 x N closing, blobs, their scores, the full-resolution
-        refinement (on a ``given`` vehicle mask's outline, if any) and the range filter."""
+        refinement (on a ``given`` vehicle mask's outline, if any; ``middle``: the frame a
+        step back and the road's map to it, for the road veto) and the range filter."""
         plan = self._plan_mask(moving)
         tall = self._tall_parts(plan)
         plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
@@ -730,7 +746,7 @@ class VehicleDetector:
             early = np.asarray(earlier_full, np.float32)
             for c in cands:
                 if not c.hidden:
-                    self._refine(c, cur, early, maps, near, given=given)
+                    self._refine(c, cur, early, maps, near, given=given, middle=middle)
         return plan, self._in_range_merged(cands)
 
     def _detect_paper(self, a: np.ndarray, w1: np.ndarray, ok: np.ndarray) -> DetectionFrame:
@@ -803,6 +819,7 @@ class VehicleDetector:
         maps: dict[float, tuple[np.ndarray, np.ndarray]],
         near_moving: np.ndarray,
         given: np.ndarray | None = None,
+        middle: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None,
     ) -> None:
         """Move the detection to the nearest full-resolution edge that moves independently.
 
@@ -815,6 +832,15 @@ class VehicleDetector:
         than refine_back_m before the coarse point), the nearest per bearing bin form
         the vehicle's lower contour on the road; the nearest point of its line fit
         (`nearest_on_contour`) is the refined obstacle-map point.
+
+        Road veto (``middle``: the frame one step back, grey, and the road's working-scale
+        maps to it): the road a vehicle driving away uncovered over the baseline lights up
+        with it, and its lane marks are edges of the current frame; but the part uncovered
+        before the last step was seen in the frame a step back, where the road hypothesis
+        explains it. An edge pixel whose 3 x 3 residual against that road-compensated frame
+        is within the floor (k + <|g|^2> sigma^2) is left out: the refined point is the
+        vehicle's own edge, or the detection stays unrefined (the tracker's swept
+        measurement, `estimator.surround.tracking`).
         """
         cfg = self.cfg
         H_img, W_img = cur.shape
@@ -868,6 +894,8 @@ class VehicleDetector:
         rng = self._road_rng[r0:r1, c0:c1]
         coarse = float(np.hypot(det.x_m, det.y_m))
         cand = edge & mov & np.isfinite(rng) & (rng >= coarse - cfg.refine_back_m)
+        if middle is not None and given is None:
+            cand &= ~self._road_explained(a, gu, gv, middle, qu, qv)
         strong = cand & (m > cfg.refine_threshold)
         if not strong.any():
             return
@@ -894,6 +922,34 @@ class VehicleDetector:
         det.x_m, det.y_m = float(xy[0]), float(xy[1])
         det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
+
+    def _road_explained(
+        self,
+        a: np.ndarray,
+        gu: np.ndarray,
+        gv: np.ndarray,
+        middle: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]],
+        qu: np.ndarray,
+        qv: np.ndarray,
+    ) -> np.ndarray:
+        """(h, w) bool over a full-resolution window ``a`` (gradients gu, gv [grey
+        level/px]; qu, qv: its pixels at the working scale): the road explains the pixel
+        against the frame a step back, ``<(a - I_road)^2> <= k + <|g|^2> sigma^2`` (3 x 3)."""
+        cfg, s = self.cfg, self.cfg.scale
+        frame, (mx, my) = middle
+        fx = cv2.remap(mx, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        fy = cv2.remap(my, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        road = cv2.remap(
+            frame,
+            (fx + 0.5) * s - 0.5,
+            (fy + 0.5) * s - 0.5,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+        )
+        d = a - road
+        residual = cv2.blur(d * d, (3, 3))
+        floor = cfg.energy_k + cv2.blur(gu * gu + gv * gv, (3, 3)) * cfg.registration_sigma_px**2
+        return residual <= floor
 
     @staticmethod
     def _energies(
