@@ -859,17 +859,7 @@ class VehicleDetector:
         # (a pixel q of scale s is the full-resolution pixel (q + 0.5) s - 0.5)
         vv, uu = np.mgrid[r0:r1, c0:c1].astype(np.float32)
         qu, qv = (uu + 0.5) / s - 0.5, (vv + 0.5) / s - 0.5
-        warped = {}
-        for lam, (mx, my) in maps.items():
-            fx = cv2.remap(mx, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            fy = cv2.remap(my, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            warped[lam] = cv2.remap(
-                early,
-                (fx + 0.5) * s - 0.5,
-                (fy + 0.5) * s - 0.5,
-                cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT,
-            )
+        warped = {lam: _warp_window(early, mxy, qu, qv, s) for lam, mxy in maps.items()}
         ok = np.ones(shape, bool)
         if given is not None:  # a given vehicle mask: its pixels are the moving edges
             m = given[r0:r1, c0:c1].astype(np.float32)
@@ -895,7 +885,8 @@ class VehicleDetector:
         coarse = float(np.hypot(det.x_m, det.y_m))
         cand = edge & mov & np.isfinite(rng) & (rng >= coarse - cfg.refine_back_m)
         if middle is not None and given is None:
-            cand &= ~self._road_explained(a, gu, gv, middle, qu, qv)
+            road = _warp_window(middle[0], middle[1], qu, qv, s)
+            cand &= ~self._road_explained(a, gu, gv, road)
         strong = cand & (m > cfg.refine_threshold)
         if not strong.any():
             return
@@ -924,28 +915,12 @@ class VehicleDetector:
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
 
     def _road_explained(
-        self,
-        a: np.ndarray,
-        gu: np.ndarray,
-        gv: np.ndarray,
-        middle: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]],
-        qu: np.ndarray,
-        qv: np.ndarray,
+        self, a: np.ndarray, gu: np.ndarray, gv: np.ndarray, road: np.ndarray
     ) -> np.ndarray:
         """(h, w) bool over a full-resolution window ``a`` (gradients gu, gv [grey
-        level/px]; qu, qv: its pixels at the working scale): the road explains the pixel
-        against the frame a step back, ``<(a - I_road)^2> <= k + <|g|^2> sigma^2`` (3 x 3)."""
-        cfg, s = self.cfg, self.cfg.scale
-        frame, (mx, my) = middle
-        fx = cv2.remap(mx, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        fy = cv2.remap(my, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        road = cv2.remap(
-            frame,
-            (fx + 0.5) * s - 0.5,
-            (fy + 0.5) * s - 0.5,
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-        )
+        level/px]): the road-compensated frame a step back, ``road`` (`_warp_window`),
+        explains the pixel, ``<(a - I_road)^2> <= k + <|g|^2> sigma^2`` (3 x 3)."""
+        cfg = self.cfg
         d = a - road
         residual = cv2.blur(d * d, (3, 3))
         floor = cfg.energy_k + cv2.blur(gu * gu + gv * gv, (3, 3)) * cfg.registration_sigma_px**2
@@ -1182,6 +1157,29 @@ class VehicleDetector:
                 )
             )
         return out
+
+
+def _warp_window(
+    frame: np.ndarray,
+    maps: tuple[np.ndarray, np.ndarray],
+    qu: np.ndarray,
+    qv: np.ndarray,
+    scale: int,
+) -> np.ndarray:
+    """(h, w) float32: the full-resolution ``frame`` warped onto a window of the current
+    frame whose pixels are (qu, qv) (h, w) at the working scale, by the working-scale
+    ``maps`` (`FrameCompensator.maps_h`), interpolated to full resolution (a pixel q of
+    scale s is the full-resolution pixel (q + 0.5) s - 0.5)."""
+    mx, my = maps
+    fx = cv2.remap(mx, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    fy = cv2.remap(my, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return cv2.remap(
+        frame,
+        (fx + 0.5) * scale - 0.5,
+        (fy + 0.5) * scale - 0.5,
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+    )
 
 
 def _fill_and_holes(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ from estimator.geometry import skew
 from estimator.surround.detection import (
     DetectorConfig,
     VehicleDetector,
+    _warp_window,
     hypothesis_homography,
     nearest_on_contour,
     normalized_difference,
@@ -449,7 +450,8 @@ def test_road_veto_keeps_an_edge_that_moved_and_drops_road_the_road_explains():
     vv, uu = np.mgrid[r0:r1, c0:c1].astype(np.float32)
     qu, qv = (uu + 0.5) / s - 0.5, (vv + 0.5) / s - 0.5
     maps = comp.maps_h(H1, s, True)
-    explained = det._road_explained(a, gu, gv, (middle.astype(np.float32), maps), qu, qv)
+    road = _warp_window(middle.astype(np.float32), maps, qu, qv, s)
+    explained = det._road_explained(a, gu, gv, road)
     p = patch[r0:r1, c0:c1]
     inner = cv2.erode(p.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     road = ~(cv2.dilate(p.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0)
