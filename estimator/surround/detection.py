@@ -65,7 +65,7 @@ the car-body mask (the body's silhouette where one is given,
 ~7.3 m of road) does not show where the vehicle meets the road, only its bearings. Such
 a detection is flagged ``hidden``; the arc along which the blob's tall parts meet the edge gives
 its bearings, and a car-sized box along the ego car's heading that spans them gives
-its range (`hidden_box_nearest_point`: the nearer, the wider; without a fit, at
+its range (`estimator.surround.hidden`: the nearer, the wider; without a fit, at
 ``hidden_range_frac`` of the edge's range on the arc's middle); the tracker refines
 it (bearing-only update).
 
@@ -103,6 +103,8 @@ from estimator.egomotion.compensation import FrameCompensator
 from estimator.egomotion.homography import homography_parts
 from estimator.geometry import skew
 from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
+from estimator.surround.hidden import hidden_box
+from estimator.surround.outline import lower_outline, nearest_on_outline
 from estimator.surround.planview import PlanView, pixel_road_xy
 
 DEFAULT_DETECTOR = "hypotheses"  # `DetectorConfig.method` by default
@@ -166,7 +168,7 @@ class DetectorConfig:
     hidden_margin_px: int = 3  # [px], 0..10
     hidden_range_frac: float = 0.6  # [-] without an arc to fit: placed at this fraction of it
     # a hidden vehicle is a box of this size along the ego car's heading, placed so that it
-    # spans the bearings its blob spans at the edge (`hidden_box_nearest_point`)
+    # spans the bearings its blob spans at the edge (`estimator.surround.hidden`)
     hidden_box_m: tuple[float, float] = (4.7, 1.9)  # [m] (length, width) of a typical car
     # the motion mask reaches beyond a vehicle by about its window: each end of the arc
     # is moved in by this much, in image pixels along the edge
@@ -330,139 +332,6 @@ def hypothesis_homography(
 def _gauss(img: np.ndarray, K: int) -> np.ndarray:
     K = max(3, int(K) | 1)
     return cv2.GaussianBlur(img, (K, K), K / 4.0)
-
-
-def lower_outline(
-    xy_m: np.ndarray, bin_rad: float, weak: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """A vehicle's lower outline: of road points xy_m (N, 2) [m], the nearest to the
-    origin per bearing bin of ``bin_rad`` [rad] (``weak`` (N,) bool: points taken only in
-    bins without any other), ordered by bearing; and the bins' indices (M,)."""
-    xy = np.asarray(xy_m, float).reshape(-1, 2)
-    b = np.arctan2(xy[:, 1], xy[:, 0])
-    r = np.hypot(xy[:, 0], xy[:, 1])
-    # bins relative to the mean bearing (no wrap at +-pi)
-    b0 = math.atan2(float(np.sin(b).mean()), float(np.cos(b).mean()))
-    k = np.round(np.angle(np.exp(1j * (b - b0))) / bin_rad).astype(int)
-    w = np.zeros(len(xy), bool) if weak is None else np.asarray(weak, bool)
-    order = np.lexsort((r, w, k))
-    first = order[np.r_[True, k[order][1:] != k[order][:-1]]]
-    return xy[first], k[first]
-
-
-def nearest_on_contour(
-    xy_m: np.ndarray,
-    bin_rad: float,
-    split_m: float,
-    min_points: int = 3,
-    weak: np.ndarray | None = None,
-) -> np.ndarray:
-    """(2,) nearest point to the origin of a vehicle's lower contour, fitted [m].
-
-    xy_m: (N, 2) road points of a blob's moving edge pixels (ego road frame). The
-    contour is the nearest point per bearing bin of ``bin_rad``, ordered by bearing;
-    ``weak`` (N,) bool marks points taken only in bins without any other point.
-    It is cut where bins are missing (more than 2) and then split recursively at
-    the point farthest from a piece's chord while that is more than ``split_m``
-    away (iterative end-point fit, Ramer-Douglas-Peucker: the faces of an L-shaped
-    outline, and stray edges apart). Each piece of at least ``min_points`` points is
-    fitted with a total-least-squares line (principal axis) and the nearest point
-    of the fitted segment (the piece's extent along its line) to the origin taken;
-    the nearest of them is returned (the nearest contour point when no piece has
-    enough points). The fit averages the range quantisation of single pixels.
-    """
-    return nearest_on_outline(*lower_outline(xy_m, bin_rad, weak), split_m, min_points)
-
-
-def nearest_on_outline(
-    c: np.ndarray, kc: np.ndarray, split_m: float, min_points: int = 3
-) -> np.ndarray:
-    """`nearest_on_contour` of a lower outline (`lower_outline`: points (M, 2) [m] ordered
-    by bearing, their bins (M,))."""
-    cuts = np.flatnonzero(np.diff(kc) > 3) + 1
-    stack = list(np.split(c, cuts))
-    pieces = []
-    while stack:
-        p = stack.pop()
-        if len(p) >= 2 * min_points:
-            t = (p[-1] - p[0]) / max(float(np.linalg.norm(p[-1] - p[0])), 1e-9)
-            off = np.abs((p - p[0]) @ np.array([-t[1], t[0]]))  # distance from the chord
-            j = int(np.argmax(off))
-            if off[j] > split_m:
-                stack += [p[: j + 1], p[j:]]
-                continue
-        pieces.append(p)
-    best, best_r = c[int(np.argmin(np.hypot(c[:, 0], c[:, 1])))], math.inf
-    for p in pieces:
-        if len(p) < min_points:
-            continue
-        m = p.mean(axis=0)
-        d = np.linalg.svd(p - m, full_matrices=False)[2][0]  # line: m + s d
-        s = (p - m) @ d
-        # nearest point of the line to the origin (s = -m.d), clipped to the piece
-        q = m + float(np.clip(-(m @ d), s.min(), s.max())) * d
-        if float(np.hypot(*q)) < best_r:
-            best, best_r = q, float(np.hypot(*q))
-    return best
-
-
-def hidden_box_nearest_point(
-    bearing_lo_rad: float, bearing_hi_rad: float, max_range_m: float, box_m: tuple[float, float]
-) -> np.ndarray | None:
-    """(2,) the nearest point of `hidden_box`'s box [m], or None."""
-    fit = hidden_box(bearing_lo_rad, bearing_hi_rad, max_range_m, box_m)
-    return None if fit is None else fit[2:]
-
-
-def hidden_box(
-    bearing_lo_rad: float, bearing_hi_rad: float, max_range_m: float, box_m: tuple[float, float]
-) -> np.ndarray | None:
-    """(4,) centre and point nearest the camera [m] (x, y, x, y) of the box (length,
-    width) [m], heading along x, whose bearings from the camera span
-    bearing_lo..bearing_hi [rad] (bearing_hi ahead of bearing_lo counter-clockwise) and
-    whose nearest point lies within max_range_m [m]; None when no such box matches the
-    span to 2 deg.
-
-    A vehicle whose ground contact is hidden shows its bearings but not its range: with
-    its size known, the span it covers gives the range (nearer is wider). The fit is a
-    grid search over the box's centre, coarse (0.25 m of range, span/10 of bearing) then
-    fine around the best (0.05 m, span/40)."""
-    span = float(np.angle(np.exp(1j * (bearing_hi_rad - bearing_lo_rad))))
-    if span <= 0:
-        return None
-    mid = bearing_lo_rad + 0.5 * span
-    half = 0.5 * np.asarray(box_m, float)
-    cm, sm = math.cos(mid), math.sin(mid)
-    offsets = half * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])  # (4, 2) corners
-
-    def fit(rho: np.ndarray, theta: np.ndarray) -> tuple[float, np.ndarray]:
-        R, T = np.meshgrid(rho, theta, indexing="ij")
-        c = np.stack([R * np.cos(T), R * np.sin(T)], axis=-1).reshape(-1, 2)  # (P, 2)
-        corners = c[:, None, :] + offsets  # (P, 4, 2)
-        # bearings relative to mid: the corners turned by -mid (no wrap within +-pi)
-        x = corners[..., 0] * cm + corners[..., 1] * sm
-        y = corners[..., 1] * cm - corners[..., 0] * sm
-        rel = np.arctan2(y, x)
-        lo, hi = rel.min(axis=1), rel.max(axis=1)
-        # the box must not hold the camera (|x| < a and |y| < b): its bearings would wrap
-        outside = (np.abs(c[:, 0]) > half[0]) | (np.abs(c[:, 1]) > half[1])
-        near = np.clip(0.0, c - half, c + half)  # (P, 2) the box's point nearest the camera
-        ok = outside & (np.hypot(near[:, 0], near[:, 1]) <= max_range_m)
-        cost = np.where(ok, (lo + 0.5 * span) ** 2 + (hi - 0.5 * span) ** 2, np.inf)
-        k = int(np.argmin(cost))
-        return float(cost[k]), np.r_[c[k], near[k]]
-
-    coarse_rho = np.arange(0.5, max_range_m + half[0] + 0.25, 0.25)
-    cost, best = fit(coarse_rho, mid + np.linspace(-0.5, 0.5, 11) * span)
-    if not np.isfinite(cost):
-        return None
-    rho0, theta0 = float(np.hypot(*best[:2])), math.atan2(best[1], best[0])
-    rho = rho0 + np.arange(-0.25, 0.25 + 1e-9, 0.05)
-    theta = theta0 + np.linspace(-0.1, 0.1, 9) * span
-    cost, best = fit(rho[rho > 0], theta)
-    if not np.isfinite(cost) or cost > 2 * np.radians(2.0) ** 2:
-        return None
-    return best
 
 
 class VehicleDetector:
@@ -831,7 +700,7 @@ class VehicleDetector:
         current frame (the uncovered road has none). Of those pixels (not nearer
         than refine_back_m before the coarse point), the nearest per bearing bin form
         the vehicle's lower contour on the road; the nearest point of its line fit
-        (`nearest_on_contour`) is the refined obstacle-map point.
+        (`estimator.surround.outline.nearest_on_contour`) is the refined obstacle-map point.
 
         Road veto (``middle``: the frame one step back, grey, and the road's working-scale
         maps to it): the road a vehicle driving away uncovered over the baseline lights up

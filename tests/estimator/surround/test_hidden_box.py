@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.surround.detection import hidden_box_nearest_point
+from estimator.surround.hidden import hidden_box_nearest_point
 
 BOX = (4.7, 1.9)  # [m]
 
