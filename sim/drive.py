@@ -259,7 +259,9 @@ class DriveRenderer:
             )
             if self.renderer == "plane":
                 T_ref = self.poses[0].T_world_nominal
-                r = PlaneFrameRenderer(self.camera, T_ref, self.face_px, True, static, area)
+                r = PlaneFrameRenderer(
+                    self.camera, T_ref, self.face_px, True, static, area, self.scenario.shadows
+                )
             else:
                 r = CubeFrameRenderer(self.camera, static, self.face_px)
             self._rays = self.camera.pixel_rays()
@@ -436,6 +438,11 @@ def render_drive(
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
     if renderer not in RENDERERS:  # before the simulation
         raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
+    if scenario.shadows and renderer != "plane":
+        raise ValueError(
+            f"scenario {scenario.name!r}: key 'shadows': the {renderer!r} renderer draws no "
+            "shadows; use the plane renderer"
+        )
     drive = prepare_drive(scenario, max_frames, face_px, renderer)
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)

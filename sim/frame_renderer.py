@@ -3,12 +3,13 @@
 Two ways to render a frame, with the same outputs (`FrameImages`):
 
 - `PlaneFrameRenderer` (the default): the road plane (road, markings, grass) is drawn
-  analytically for every pixel (`sim.ground`); only what stands on it (vehicles,
-  guard-rails, posts, trees, buildings) is rasterised by pyrender into the windows of
-  cube faces that valid pixels see (`sim.renderer`), and laid over the plane by its
-  coverage (whatever a ray hits above the plane is nearer than the plane).
+  analytically for every pixel (`sim.ground`), in the vehicles' shadows if asked
+  (`sim.shadows`); only what stands on it (vehicles, guard-rails, posts, trees,
+  buildings) is rasterised by pyrender into the windows of cube faces that valid pixels
+  see (`sim.renderer`), and laid over the plane by its coverage (whatever a ray hits
+  above the plane is nearer than the plane).
 - `CubeFrameRenderer`: everything rasterised into cube faces and ray-mapped, the plane
-  included (kept to measure against: `scenarios.motion_fidelity`).
+  included, without shadows (kept to measure against: `scenarios.motion_fidelity`).
 
 Both draw the pixels of the car body under an omni mirror once, at the first frame.
 """
@@ -38,6 +39,7 @@ from sim.ground import CoverageMap, GroundLook, GroundRenderer, MipTexture
 from sim.highway import VehicleState
 from sim.renderer import OmniRenderer, finest_pixel_angle_rad
 from sim.scene import DEPTH_OFFSET, WHITE, decode_id_image, id_occluder_mesh, vehicles_mesh
+from sim.shadows import cast_shadows
 
 SKY_RGB = (0.62, 0.74, 0.90)
 RENDERERS = ("plane", "cube")  # `PlaneFrameRenderer`, `CubeFrameRenderer`
@@ -195,7 +197,8 @@ class PlaneFrameRenderer:
     the plane set the pixels' footprints, `sim.ground`); face_px: cube-face size of the
     objects' faces (default `object_face_px`); cache_body: draw the car body's pixels
     once (`start`), for a camera that stays on one car; static_meshes, area_xy: the
-    static world (`set_static`).
+    static world (`set_static`); shadows: the vehicles cast shadows on the plane
+    (`sim.shadows`).
     """
 
     def __init__(
@@ -206,8 +209,10 @@ class PlaneFrameRenderer:
         cache_body: bool = True,
         static_meshes: list | None = None,
         area_xy: tuple | None = None,
+        shadows: bool = False,
     ) -> None:
         self.camera = camera
+        self.shadows = shadows
         self.face_px = face_px or object_face_px(camera)
         self.cache_body = cache_body
         self.scenes = CodedScene([])
@@ -303,7 +308,9 @@ class PlaneFrameRenderer:
         job = (
             None
             if plane is None
-            else self._pool.submit(plane.render_into, T_world_cam, behind, range_m)
+            else self._pool.submit(
+                _draw_plane, plane, vehicles if self.shadows else (), T_world_cam, behind, range_m
+            )
         )
         coded.set_vehicles(vehicles)
         clock.lap("vehicles")
@@ -328,6 +335,13 @@ class PlaneFrameRenderer:
             self._objects = None
         self._ground = None
         self._pool.shutdown()
+
+
+def _draw_plane(plane: GroundRenderer, casters, T_world_cam, image, range_m) -> None:
+    """The plane, in the shadows of the vehicles casters (none: fully lit), into image
+    and range_m (`GroundRenderer.render_into`)."""
+    light = cast_shadows(casters, np.asarray(T_world_cam, float)[:2, 3]) if casters else None
+    plane.render_into(T_world_cam, image, range_m, light)
 
 
 def _texture_key(by_name: dict) -> tuple:

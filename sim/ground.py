@@ -36,12 +36,16 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numba import njit, prange
 
 from estimator.camera.models import CameraModel
+
+if TYPE_CHECKING:
+    from sim.shadows import LightMap
 
 PIXEL_SIGMA_PX = 0.5  # [px] std of a camera pixel's Gaussian response, 0.3..1
 MAX_PROBES = 8  # [-] most probes along a footprint's major axis, 1..32
@@ -388,13 +392,26 @@ class GroundRenderer:
         return GroundImage(image, range_m, hit)
 
     def render_into(
-        self, T_world_cam: np.ndarray, image: np.ndarray, range_m: np.ndarray
+        self,
+        T_world_cam: np.ndarray,
+        image: np.ndarray,
+        range_m: np.ndarray,
+        light: LightMap | None = None,
     ) -> np.ndarray:
         """Draw the plane seen from T_world_cam (4, 4) into image (H, W, 3) float32 [DN]
-        and range_m (H, W) float32 [m] (where a pixel's centre ray meets it); returns the
-        (H, W) bool pixels drawn."""
+        and range_m (H, W) float32 [m] (where a pixel's centre ray meets it), lit as light
+        says (`sim.shadows.cast_shadows` around the camera; default: fully lit); returns
+        the (H, W) bool pixels drawn."""
         R, o = T_world_cam[:3, :3].astype(np.float64), T_world_cam[:3, 3].astype(np.float64)
         cm, look = self.coverage, self.look
+        if light is None:
+            sun, sun_cell = np.zeros((1, 1), np.uint8), 0.0
+            sky, sky_cell, half = np.zeros((1, 1), np.float32), 0.0, 0.0
+            light_w = np.zeros(2)
+        else:
+            sun, sun_cell = light.sun, float(light.sun_cell_m)
+            sky, sky_cell, half = light.sky, float(light.sky_cell_m), float(light.half_m)
+            light_w = light.weights()
         cm.follow(float(o[0]), float(o[1]))
         paint = np.asarray(look.marking_albedo, np.float64) * look.k_marking
         _shade(
@@ -403,7 +420,8 @@ class GroundRenderer:
             _atlas_args(look.grass, o), self.lvl_grass[0], self.lvl_grass[1],
             _atlas_args(cm.fine, o), _atlas_args(cm.coarse, o),
             self.lvl_cover[0], self.lvl_cover[1],
-            float(look.k_road), float(look.k_grass), paint, self.sky_linear,
+            float(look.k_road), float(look.k_grass), paint,
+            sun, sun_cell, sky, sky_cell, half, light_w, self.sky_linear,
             1.0 / DISPLAY_GAMMA, MAX_RANGE_M, self.pixel, self.centre_rays,
             image.reshape(-1, 3), range_m.reshape(-1),
         )  # fmt: skip
@@ -504,6 +522,25 @@ def _cover_at(args, level, frac, x, y):
 
 
 @njit(cache=True, inline="always", fastmath=_FAST)
+def _grid_at(grid, cell, half, x, y):
+    """Bilinear sample of a 2-D grid (`sim.shadows.LightMap`) at the plane point (x, y)
+    [m] relative to the camera; 0 outside it or without one (cell 0)."""
+    if cell <= 0.0:
+        return 0.0
+    u = (x + half) / cell - 0.5
+    v = (y + half) / cell - 0.5
+    x0f, y0f = np.floor(u), np.floor(v)
+    x0, y0 = int(x0f), int(y0f)
+    if x0 < 0 or y0 < 0 or x0 + 1 >= grid.shape[1] or y0 + 1 >= grid.shape[0]:
+        return 0.0
+    fx, fy = u - x0f, v - y0f
+    a, b = float(grid[y0, x0]), float(grid[y0, x0 + 1])
+    c, d = float(grid[y0 + 1, x0]), float(grid[y0 + 1, x0 + 1])
+    top = a + fx * (b - a)
+    return top + fy * (c + fx * (d - c) - top)
+
+
+@njit(cache=True, inline="always", fastmath=_FAST)
 def _plane_point(rays, p, R, o, max_range):
     """Where probe p's ray (camera frame) seen from pose (R, o) meets the plane: (hit,
     x, y) [m] relative to the camera."""
@@ -519,13 +556,15 @@ def _plane_point(rays, p, R, o, max_range):
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _shade(
     rays, weight, starts, n_fine, R, o, asphalt, la, fa, grass, lg, fg, fine, coarse, lc, fc,
-    k_road, k_grass, paint, sky, inv_gamma, max_range, pixel, centre, out_rgb, out_range,
+    k_road, k_grass, paint, sun, sun_cell, sky_hidden, sky_cell, half, light_w, sky,
+    inv_gamma, max_range, pixel, centre, out_rgb, out_range,
 ):  # fmt: skip
     """The colour [DN] of every pixel (N,) into out_rgb[pixel] (HW, 3), and the range of
     its centre ray (N, 3) into out_range[pixel] (HW,) where it meets the plane: its
     probes' rays (P, 3) meet the plane seen from pose (R, o) and read the coverage (the
     fine window for the first n_fine pixels, else the coarse map) and the textures, each
-    trilinear; the part of the footprint off the plane is sky (linear, (3,))."""
+    trilinear, lit as the grids of the sun and sky hidden say (`_grid_at`, weighted by
+    light_w (2,)); the part of the footprint off the plane is sky (linear, (3,))."""
     for i in prange(len(starts) - 1):
         acc0, acc1, acc2 = 0.0, 0.0, 0.0
         cover = 0.0
@@ -574,9 +613,15 @@ def _shade(
                     kg = (1.0 - road) * k_grass
                     t0, t1, t2 = t0 + kg * g0, t1 + kg * g1, t2 + kg * g2
                 w = weight[p]
-                acc0 += w * (t0 + mark * (paint[0] - t0))
-                acc1 += w * (t1 + mark * (paint[1] - t1))
-                acc2 += w * (t2 + mark * (paint[2] - t2))
+                # light: 1 - the parts of the sun and sky hidden, weighted (`sim.shadows`)
+                lw = w * (
+                    1.0
+                    - light_w[0] * _grid_at(sun, sun_cell, half, x, y) / 255.0
+                    - light_w[1] * _grid_at(sky_hidden, sky_cell, half, x, y)
+                )
+                acc0 += lw * (t0 + mark * (paint[0] - t0))
+                acc1 += lw * (t1 + mark * (paint[1] - t1))
+                acc2 += lw * (t2 + mark * (paint[2] - t2))
                 cover += w
             hit_b, x_b, y_b, r_b, m_b = hit, x, y, r, m
             hit, x, y, r, m = hit_n, x_n, y_n, r_n, m_n

@@ -79,6 +79,7 @@ class Scenario(_Strict):
     camera: str | dict[str, Any] = "omni-near"  # preset name or {preset: ..., overrides}
     view_range_m: float = Field(120.0, gt=5)  # [m] how far the scene is built
     detection_range_m: float = Field(25.0, gt=1)  # [m] range of the detection evaluation
+    shadows: bool = False  # vehicles cast shadows on the road (`sim.shadows`; plane renderer)
     can: CanConfig = CanConfig()
     vibration: VibrationConfig = VibrationConfig()
     sensor: SensorConfig = SensorConfig()
@@ -96,12 +97,14 @@ class Scenario(_Strict):
         return int(math.floor(self.duration_s * self.fps + 1e-9))
 
     def to_dict(self) -> dict[str, Any]:
-        """The scenario as plain data; an unset ego_speed_mps and no added traffic are left
-        out, so that renders and suite jobs of scenarios written before them keep their
-        keys."""
+        """The scenario as plain data; an unset ego_speed_mps, no added traffic and no
+        shadows are left out, so that renders and suite jobs of scenarios written before
+        them keep their keys."""
         d = self.model_dump(mode="json")
         if d["ego_speed_mps"] is None:
             del d["ego_speed_mps"]
+        if not self.shadows:
+            del d["shadows"]
         if not self.traffic.active:
             del d["traffic"]
         return d

@@ -676,17 +676,20 @@ _REF_L, _REF_W, _REF_H = 5.0, 2.0, 1.5
 BODY, GLASS, TYRE, HEADLIGHT, TAILLIGHT = range(5)
 
 
-def _car_template() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(V, 3) vertices, (F, 3) faces, (V, 3) normals, (V,) part roles of the car."""
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+def _car_template() -> tuple[np.ndarray, ...]:
+    """(V, 3) vertices, (F, 3) faces, (V, 3) normals, (V,) part roles of the car, and
+    (V,) the convex solid each vertex belongs to (0: lower body, wheels and lights;
+    1: hood rise; 2: greenhouse): the car is the union of their convex hulls."""
+    parts: list[tuple[np.ndarray, ...]] = []
 
-    def add(vfn: tuple[np.ndarray, ...], role: np.ndarray | int) -> None:
+    def add(vfn: tuple[np.ndarray, ...], role: np.ndarray | int, solid: int = 0) -> None:
         v, f, n = vfn
-        parts.append((v, f, n, np.broadcast_to(np.asarray(role), (len(v),)).copy()))
+        r = np.broadcast_to(np.asarray(role), (len(v),)).copy()
+        parts.append((v, f, n, r, np.full(len(v), solid)))
 
     hl, hw = _REF_L / 2, _REF_W / 2
     add(_box((-hl, -hw + 0.03, 0.16), (hl, hw - 0.03, 0.80)), BODY)  # lower body
-    add(_box((hl - 1.15, -hw + 0.06, 0.80), (hl, hw - 0.06, 0.88)), BODY)  # hood rise
+    add(_box((hl - 1.15, -hw + 0.06, 0.80), (hl, hw - 0.06, 0.88)), BODY, 1)  # hood rise
     # greenhouse: a frustum; roof in body colour, the four sloped sides are glass
     lo = np.array([[-1.85, -0.9], [1.05, -0.9], [1.05, 0.9], [-1.85, 0.9]])
     hi = np.array([[-1.25, -0.76], [0.25, -0.76], [0.25, 0.76], [-1.25, 0.76]])
@@ -694,7 +697,7 @@ def _car_template() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         [np.column_stack([lo, np.full(4, 0.80)]), np.column_stack([hi, np.full(4, _REF_H)])]
     )
     v, f, n = _unmerged(trimesh.convex.convex_hull(pts))
-    add((v, f, n), np.where(n[:, 2] > 0.99, BODY, GLASS))
+    add((v, f, n), np.where(n[:, 2] > 0.99, BODY, GLASS), 2)
     # wheels: octagonal prisms, axis along y, touching the road
     cyl = trimesh.creation.cylinder(0.34, 0.24, sections=8)
     cyl.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
@@ -706,18 +709,21 @@ def _car_template() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     for y0, y1 in ((-0.85, -0.5), (0.5, 0.85)):
         add(_box((hl - 0.01, y0, 0.58), (hl + 0.02, y1, 0.70)), HEADLIGHT)
         add(_box((-hl - 0.02, y0, 0.62), (-hl + 0.01, y1, 0.74)), TAILLIGHT)
-    vs, fs, ns, rs, base = [], [], [], [], 0
-    for v, f, n, r in parts:
-        vs.append(v)
-        fs.append(f + base)
-        ns.append(n)
-        rs.append(r)
-        base += len(v)
-    return np.concatenate(vs), np.concatenate(fs), np.concatenate(ns), np.concatenate(rs)
+    fs, base = [], 0
+    for p in parts:
+        fs.append(p[1] + base)
+        base += len(p[0])
+    v, n, r, solid = (np.concatenate([p[k] for p in parts]) for k in (0, 2, 3, 4))
+    return v, np.concatenate(fs), n, r, solid
 
 
 _CAR = _car_template()
 _CAR_CORNERS = _CAR[0][_CAR[1]].reshape(-1, 3)  # (3F, 3) the template's triangle corners
+# (K, 3) corners of the hulls of its convex solids, padded by repeating a corner
+_CAR_SOLIDS = [trimesh.convex.convex_hull(_CAR[0][_CAR[4] == k]).vertices for k in range(3)]
+_CAR_SOLID_PTS = np.stack(
+    [np.vstack([h, np.repeat(h[:1], max(map(len, _CAR_SOLIDS)) - len(h), 0)]) for h in _CAR_SOLIDS]
+)
 
 # body colours (RGB) in rough proportion to what is seen on roads
 CAR_PALETTE = np.array(
@@ -781,7 +787,7 @@ def _posed_cars(
     """The car template scaled to each vehicle's length/width/height and posed by (x, y,
     yaw), in one numpy operation: (M*V, 3) vertices, (M*F, 3) faces, (M*V, 3) normals
     and (M,) int64 ids of the M vehicles."""
-    tv, tf, tn, _ = _CAR
+    tv, tf, tn = _CAR[:3]
     xy, yaw, scale, ids = _vehicle_poses(vehicles)
     verts, faces, norms = _instances(tv, tf, tn, xy, yaw, scale)
     return verts, faces, norms, ids
@@ -853,6 +859,19 @@ def vehicle_triangles(
     corners = _posed_points(_CAR_CORNERS, xy, c, s, scale).reshape(-1, 3, 3)
     albedo = _role_colors(ids, roles[tf[:, 0]])  # a face's role: its first vertex's
     return corners, albedo, np.repeat(ids, len(tf))
+
+
+def vehicle_solids(vehicles: Sequence[VehicleState]) -> tuple[np.ndarray, np.ndarray]:
+    """(M, S, K, 3) corners [m] (world) of the S convex solids whose union is each
+    vehicle, as `vehicles_mesh` poses the template, and (M, 4, 2) corners [m] of each
+    footprint (length x width)."""
+    xy, yaw, scale, _ = _vehicle_poses(vehicles)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    S, K = _CAR_SOLID_PTS.shape[:2]
+    hull = _posed_points(_CAR_SOLID_PTS.reshape(-1, 3), xy, c, s, scale).reshape(-1, S, K, 3)
+    rect = np.array([[1, 1, 0], [1, -1, 0], [-1, -1, 0], [-1, 1, 0]]) * (_REF_L / 2, _REF_W / 2, 0)
+    foot = _posed_points(rect, xy, c, s, scale)[..., :2]
+    return hull, foot
 
 
 def vehicle_corners_world(v: VehicleState) -> np.ndarray:

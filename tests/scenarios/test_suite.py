@@ -45,6 +45,7 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("check-omni", 20, 10),
         ("surround-tune", 20, 10),
         ("surround-check", 20, 10),
+        ("surround-shadows", 20, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
@@ -54,6 +55,16 @@ def test_shipped_suites_load(name, jobs, drives):
     assert len({j.render_key for j in s.jobs}) == drives
     assert len({j.job_id for j in s.jobs}) == jobs
     assert s.spec.role in ("tuning", "check", "regression")
+
+
+def test_the_shadows_suite_is_surround_check_with_shadows():
+    """The same drives and jobs as surround-check, each with shadows: other renders."""
+    check, shadows = load_suite("surround-check"), load_suite("surround-shadows")
+    assert all(j.scenario.shadows for j in shadows.jobs)
+    assert not any(j.scenario.shadows for j in check.jobs)
+    strip = [j.scenario.model_copy(update={"shadows": False}) for j in shadows.jobs]
+    assert strip == [j.scenario for j in check.jobs]
+    assert not {j.render_key for j in check.jobs} & {j.render_key for j in shadows.jobs}
 
 
 def test_shipped_suite_names_match_their_role():

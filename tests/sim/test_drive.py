@@ -258,3 +258,48 @@ def test_every_frame_is_blurred_by_the_motion_also_the_last(tmp_path):
     change = [np.abs(b - s).mean() for b, s in zip(frames[True], frames[False], strict=True)]
     assert min(change) > 0.3, change  # [DN] every frame blurred
     assert change[-1] > 0.5 * change[-2], change  # the last as much as the one before
+
+
+def test_shadows_darken_only_the_road_near_the_vehicles(tmp_path):
+    """A scenario with shadows: the same ids and ranges; only plane pixels change, all
+    darker, and only within a few metres of a vehicle."""
+    dense = {"vehicles_count": 15, "lanes_count": 3, "vehicles_density": 3}  # a car within 8 m
+    drive_dir = tmp_path / "lit"
+    render_drive(tiny(seed=0, env_config=dense), drive_dir, max_frames=2, progress=False)
+    shaded_dir = tmp_path / "s"
+    render_drive(
+        tiny(seed=0, env_config=dense, shadows=True), shaded_dir, max_frames=2, progress=False
+    )
+    assert "shadows: true" in (shaded_dir / "scenario.yaml").read_text()
+    k = "000001.png"
+    for sub in ("ids", "range"):
+        assert (shaded_dir / sub / k).read_bytes() == (drive_dir / sub / k).read_bytes()
+    lit = read_png(drive_dir / "frames" / k).astype(int)
+    shaded = read_png(shaded_dir / "frames" / k).astype(int)
+    changed = np.any(shaded != lit, axis=2)
+    assert changed.sum() > 20
+    assert np.all(shaded[changed] <= lit[changed])
+    vehicles = (read_png(drive_dir / "ids" / k).astype(int) - 1 >= 0).astype(np.uint8)
+    inside = cv2.erode(vehicles, np.ones((3, 3), np.uint8)) > 0  # edges blend the road
+    assert not np.any(changed & inside)
+    # every changed pixel within 15 m (small pixel footprints) sees the road within
+    # 2.5 m of a vehicle's footprint: the shadow reaches 1.3 m, the sky hidden 1 m
+    gt = load_groundtruth(drive_dir)[1]
+    T = np.asarray(gt["T_world_cam_actual"])
+    d = load_camera(drive_dir / "camera.yaml")[0].pixel_rays()[changed] @ T[:3, :3].T
+    xy = T[:2, 3] + (-T[2, 3] / d[:, 2])[:, None] * d[:, :2]
+    xy = xy[np.hypot(*(xy - T[:2, 3]).T) < 15.0]
+    assert len(xy) > 20
+    dist = np.full(len(xy), np.inf)
+    for v in gt["vehicles"]:
+        c, s = np.cos(v["yaw_rad"]), np.sin(v["yaw_rad"])
+        rel = xy - (v["x_m"], v["y_m"])
+        along = np.abs(c * rel[:, 0] + s * rel[:, 1]) - v["length_m"] / 2
+        across = np.abs(-s * rel[:, 0] + c * rel[:, 1]) - v["width_m"] / 2
+        dist = np.minimum(dist, np.hypot(np.maximum(along, 0), np.maximum(across, 0)))
+    assert np.all(dist < 2.5), np.sort(dist)[-5:]
+
+
+def test_shadows_need_the_plane_renderer(tmp_path):
+    with pytest.raises(ValueError, match="shadows"):
+        render_drive(tiny(shadows=True), tmp_path / "c", renderer="cube", progress=False)

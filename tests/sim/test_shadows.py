@@ -1,0 +1,130 @@
+"""Vehicles' shadows on the road: the sun hidden where a ray to the sun meets the car (an
+independent ray cast on the car's triangles), the sky hidden under and around it, the
+plane shaded by what is left of the light, and no shadow of the camera's own car."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import map_coordinates
+
+from sim.coded_scene import AMBIENT, SUN_TOWARDS
+from sim.ground import DISPLAY_GAMMA
+from sim.highway import VehicleState
+from sim.scene import vehicle_triangles
+from sim.shadows import SUN_DIRECT, LightMap, cast_shadows, light
+from tests.sim.test_ground import _setup
+
+
+def _car(x: float, y: float, yaw: float, ego: bool = False, vid: int = 1) -> VehicleState:
+    return VehicleState(vid, x, y, yaw, 10.0, 4.6, 1.9, 1.5, 0.0, ego, False)
+
+
+def _sample(grid: np.ndarray, cell: float, half: float, xy: np.ndarray) -> np.ndarray:
+    """Nearest-cell value of a grid centred on the origin at points xy (N, 2) [m]."""
+    i = np.floor((xy + half) / cell).astype(int)
+    return grid[i[:, 1], i[:, 0]]
+
+
+def _ray_hits(origins: np.ndarray, d: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(N,) bool: whether the rays from origins (N, 3) along d (3,) meet any triangle
+    (T, 3, 3) (Moller-Trumbore)."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d, e2)
+    det = np.einsum("tk,tk->t", e1, p)
+    ok = np.abs(det) > 1e-12
+    e1, e2, p, det, v0 = e1[ok], e2[ok], p[ok], det[ok], tri[ok, 0]
+    hits = np.zeros(len(origins), bool)
+    for a in range(0, len(origins), 2000):
+        s = origins[a : a + 2000, None, :] - v0[None]  # (n, T, 3)
+        u = np.einsum("ntk,tk->nt", s, p) / det
+        q = np.cross(s, e1[None])
+        v = (q @ d) / det
+        t = np.einsum("ntk,tk->nt", q, e2) / det
+        hits[a : a + 2000] = np.any((u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0), axis=1)
+    return hits
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7, 2.4])
+def test_the_sun_is_hidden_where_a_ray_to_the_sun_meets_the_car(yaw):
+    car = _car(4.0, -3.0, yaw)
+    lm = cast_shadows([car], np.zeros(2))
+    step = 0.05
+    g = np.arange(-4.0, 4.0, step)
+    gx, gy = np.meshgrid(g + car.x_m, g + car.y_m)
+    xy = np.column_stack([gx.ravel(), gy.ravel()]) + 0.5 * step
+    to_sun = -SUN_TOWARDS / np.linalg.norm(SUN_TOWARDS)
+    origins = np.column_stack([xy, np.full(len(xy), 1e-3)])
+    truth = _ray_hits(origins, to_sun, vehicle_triangles([car])[0]).reshape(gx.shape)
+    hidden = _sample(lm.sun, lm.sun_cell_m, lm.half_m, xy).reshape(gx.shape) > 127
+    # compare away from the shadow's outline (3 cells) and outside the footprint (by two
+    # cells): under the body, rays pass through the gap that the lower solid's hull closes
+    pad = np.pad(truth, 3, mode="edge")
+    n = 2 * 3 + 1
+    stack = [pad[i : i + gx.shape[0], j : j + gx.shape[1]] for i in range(n) for j in range(n)]
+    settled = np.all(np.stack(stack) == truth, axis=0)
+    c, s = np.cos(yaw), np.sin(yaw)
+    lx = c * (gx - car.x_m) + s * (gy - car.y_m)
+    ly = -s * (gx - car.x_m) + c * (gy - car.y_m)
+    outside = (np.abs(lx) > car.length_m / 2 + 0.1) | (np.abs(ly) > car.width_m / 2 + 0.1)
+    check = settled & outside
+    assert truth[check].sum() > 200  # the shadow reaches beyond the footprint
+    assert (~truth[check]).sum() > 1000
+    np.testing.assert_array_equal(hidden[check], truth[check])
+
+
+def test_the_sky_is_hidden_under_the_car_and_less_with_distance():
+    car = _car(0.0, 0.0, 0.0)
+    lm = cast_shadows([car], np.zeros(2))
+
+    def sky(x: float) -> float:  # bilinear, cell centres at -half + (i + 0.5) cell
+        u = (np.array([0.0, x]) + lm.half_m) / lm.sky_cell_m - 0.5
+        return float(map_coordinates(lm.sky, u[:, None], order=1)[0])
+
+    edge = car.length_m / 2
+    assert sky(0.0) > 0.99
+    assert 0.4 < sky(edge) < 0.6
+    assert sky(edge + 0.3) < sky(edge) and sky(edge + 0.6) < sky(edge + 0.3)
+    assert sky(edge + 1.5) < 0.01
+
+
+def test_the_camera_car_casts_no_shadow():
+    lm = cast_shadows([_car(0.0, 0.0, 0.3, ego=True)], np.zeros(2))
+    assert lm.sun_cell_m == 0.0 and lm.sky_cell_m == 0.0
+    both = cast_shadows([_car(0.0, 0.0, 0.3, ego=True), _car(8.0, 0.0, 0.0, vid=2)], np.zeros(2))
+    assert _sample(both.sun, both.sun_cell_m, both.half_m, np.array([[0.0, 1.3]]))[0] == 0
+    assert _sample(both.sun, both.sun_cell_m, both.half_m, np.array([[8.0, 1.3]]))[0] == 255
+
+
+def test_light_is_the_ambient_part_in_full_shadow_and_one_in_the_open():
+    assert light(np.float32(0.0), np.float32(0.0)) == pytest.approx(1.0)
+    assert light(np.float32(1.0), np.float32(0.0)) == pytest.approx(
+        AMBIENT / (AMBIENT + SUN_DIRECT)
+    )
+    assert light(np.float32(1.0), np.float32(1.0)) == pytest.approx(0.0, abs=1e-7)
+    np.testing.assert_allclose(LightMap.weights(), [1 - light(1.0, 0.0), 1 - light(0.0, 1.0)])
+
+
+@pytest.mark.parametrize("sun_hidden, sky_hidden", [(1.0, 0.0), (1.0, 0.5), (0.0, 1.0)])
+def test_the_plane_is_shaded_by_the_light_left(sun_hidden, sky_hidden):
+    """A flat albedo under grids that hide the same part of the light everywhere: every
+    pixel's linear radiance is the open road's times `light`."""
+    albedo = 0.2
+    cam, ground, T = _setup(np.full((16, 16, 3), albedo, np.float32))
+    n = 400
+    lm = LightMap(
+        np.full((n, n), np.uint8(round(255 * sun_hidden))),
+        0.5,
+        np.full((n, n), np.float32(sky_hidden)),
+        0.5,
+        100.0,
+    )
+    H, W = cam.height, cam.width
+    image = np.zeros((H, W, 3), np.float32)
+    range_m = np.full((H, W), np.inf, np.float32)
+    hit = ground.render_into(T, image, range_m, lm)
+    rays = cam.pixel_rays() @ T[:3, :3].T
+    sure = hit & (rays[..., 2] < -0.1)
+    assert sure.sum() > 1000
+    want = 255.0 * (albedo * light(sun_hidden, sky_hidden)) ** (1 / DISPLAY_GAMMA)
+    np.testing.assert_allclose(image[sure], want, atol=1e-3)
