@@ -106,19 +106,30 @@ def bench_render(
         ["plane", "cube"], help="renderers to time, in one run (plane, cube)"
     ),
     face_px: int | None = typer.Option(None, help="cube-face size [px] (default per renderer)"),
+    shadows: bool = typer.Option(False, help="vehicles cast shadows (plane renderer only)"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
     """Frames/s of the full omni frame production (render, ray map, ids, range, every
     sensor effect) of a highway, per renderer, with a breakdown by stage."""
     from sim.bench import bench_render as run
 
+    if shadows and renderer != ["plane"]:
+        raise typer.BadParameter("--shadows needs --renderer plane alone", param_hint="--shadows")
     results = {}
     for name in renderer:
-        res = run(n_frames=frames, camera=camera, vehicles=vehicles, renderer=name, face_px=face_px)
+        res = run(
+            n_frames=frames,
+            camera=camera,
+            vehicles=vehicles,
+            renderer=name,
+            face_px=face_px,
+            shadows=shadows,
+        )
         results[name] = res
         stages = ", ".join(f"{k} {v:.0f}" for k, v in res["stages_ms"].items())
         console.print(
-            f"render ({name}, {res['face_px']} px faces): {res['frames_per_s']:.2f} frames/s "
+            f"render ({name}{', shadows' if shadows else ''}, {res['face_px']} px faces): "
+            f"{res['frames_per_s']:.2f} frames/s "
             f"({res['ms_per_frame']:.0f} ms/frame median, p90 {res['ms_p90']:.0f}, CPU "
             f"{res['cpu_ms_per_frame']:.0f} ms/frame, over {res['frames']} frames, "
             f"{res['width']}x{res['height']}, {res['vehicles']} vehicles; ms: {stages})"

@@ -144,7 +144,9 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
         runs = b.get("renderers") or {None: b}
         for name, r in runs.items():
             what = (b.get("bench") or path.stem) + (
-                f" ({name}, {r.get('face_px')}-px faces)" if name else ""
+                f" ({name}{', shadows' if r.get('shadows') else ''}, {r.get('face_px')}-px faces)"
+                if name
+                else ""
             )
             median = r.get("ms_per_frame")
             p90 = r.get("p90_ms_per_frame", r.get("ms_p90"))

@@ -16,10 +16,11 @@ def bench_render(
     warmup: int = 3,
     renderer: str = "plane",
     face_px: int | None = None,
+    shadows: bool = False,
 ) -> dict:
     """Time between frames produced one after the other (render, ray map, ids, range,
     every sensor effect on; `DriveRenderer.produce_many`, as a render does), no disk I/O,
-    on a highway-v0 drive with ``vehicles`` cars.
+    on a highway-v0 drive with ``vehicles`` cars (casting ``shadows`` on the road).
 
     Returns frames_per_s (at the median), ms_per_frame (median), ms_p90, the median CPU
     time of the process per frame ``cpu_ms_per_frame`` (all its threads: with the
@@ -36,6 +37,7 @@ def bench_render(
         duration_s=total / 15.0 + 0.01,
         fps=15.0,
         camera=camera,
+        shadows=shadows,
     )
     drive = prepare_drive(sc, face_px=face_px, renderer=renderer)
     clock, stages = FrameTimes(), []
@@ -62,5 +64,6 @@ def bench_render(
         "height": drive.camera.height,
         "vehicles": len(drive.frames[0].others),
         "face_px": drive.face_px,
+        "shadows": shadows,
         "sensor_effects": sc.sensor.model_dump(),
     }

@@ -25,7 +25,7 @@ from sim.ground import DISPLAY_GAMMA
 from sim.highway import VehicleState
 from sim.scene import vehicle_triangles
 
-SUN_TOWARDS = np.array([0.45, 0.55, -0.7])  # [-] sunlight's direction (world), 50 deg up
+SUN_TOWARDS = np.array([0.45, 0.55, -0.7])  # [-] sunlight's direction (world), 45 deg up
 SUN_INTENSITY = 3.0  # [-] pyrender DirectionalLight intensity
 AMBIENT = 0.35  # [-] pyrender ambient light
 METALLIC = 0.2  # [-] pyrender's material for vertex-coloured meshes

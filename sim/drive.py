@@ -380,6 +380,17 @@ class DriveRenderer:
         return frame_groundtruth(k, self.frames, self.poses, ids, self.can_frame)
 
 
+def check_renderer(scenario: Scenario, renderer: str) -> None:
+    """A renderer that exists and can draw the scenario (ValueError naming both)."""
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
+    if scenario.shadows and renderer != "plane":
+        raise ValueError(
+            f"scenario {scenario.name!r}: key 'shadows': the {renderer!r} renderer draws no "
+            "shadows; use the plane renderer"
+        )
+
+
 def prepare_drive(
     scenario: Scenario,
     max_frames: int | None = None,
@@ -387,6 +398,7 @@ def prepare_drive(
     renderer: str = "plane",
 ) -> DriveRenderer:
     """Simulate the scenario's traffic and set up its renderer."""
+    check_renderer(scenario, renderer)
     camera, mount = resolve_camera(scenario.camera)
     if mount.rear_axle_x_m is None:  # the ego car's geometry goes with the recording
         mount = replace(mount, rear_axle_x_m=EGO_REAR_AXLE_X_M)
@@ -436,13 +448,7 @@ def render_drive(
     if manifest.get("complete") and manifest.get("frames") == n:  # nothing to simulate either
         _write_body_mask(out_dir)  # renders made before drives held one
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
-    if renderer not in RENDERERS:  # before the simulation
-        raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
-    if scenario.shadows and renderer != "plane":
-        raise ValueError(
-            f"scenario {scenario.name!r}: key 'shadows': the {renderer!r} renderer draws no "
-            "shadows; use the plane renderer"
-        )
+    check_renderer(scenario, renderer)  # before the simulation
     drive = prepare_drive(scenario, max_frames, face_px, renderer)
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)

@@ -407,11 +407,11 @@ class GroundRenderer:
         if light is None:
             sun, sun_cell = np.zeros((1, 1), np.uint8), 0.0
             sky, sky_cell, half = np.zeros((1, 1), np.float32), 0.0, 0.0
-            light_w = np.zeros(2)
+            near, near_cell, light_w = np.zeros((1, 1), np.uint8), 0.0, np.zeros(2)
         else:
             sun, sun_cell = light.sun, float(light.sun_cell_m)
             sky, sky_cell, half = light.sky, float(light.sky_cell_m), float(light.half_m)
-            light_w = light.weights()
+            near, near_cell, light_w = light.near, float(light.near_cell_m), light.weights()
         cm.follow(float(o[0]), float(o[1]))
         paint = np.asarray(look.marking_albedo, np.float64) * look.k_marking
         _shade(
@@ -421,7 +421,7 @@ class GroundRenderer:
             _atlas_args(cm.fine, o), _atlas_args(cm.coarse, o),
             self.lvl_cover[0], self.lvl_cover[1],
             float(look.k_road), float(look.k_grass), paint,
-            sun, sun_cell, sky, sky_cell, half, light_w, self.sky_linear,
+            sun, sun_cell, sky, sky_cell, half, near, near_cell, light_w, self.sky_linear,
             1.0 / DISPLAY_GAMMA, MAX_RANGE_M, self.pixel, self.centre_rays,
             image.reshape(-1, 3), range_m.reshape(-1),
         )  # fmt: skip
@@ -522,6 +522,17 @@ def _cover_at(args, level, frac, x, y):
 
 
 @njit(cache=True, inline="always", fastmath=_FAST)
+def _near(near, cell, half, x, y):
+    """Whether the plane point (x, y) [m] relative to the camera lies on a block of the
+    light grids that is not fully lit (`sim.shadows.LightMap.near`; never without one)."""
+    if cell <= 0.0:
+        return False
+    i = int(np.floor((x + half) / cell))
+    j = int(np.floor((y + half) / cell))
+    return 0 <= i < near.shape[1] and 0 <= j < near.shape[0] and near[j, i] != 0
+
+
+@njit(cache=True, inline="always", fastmath=_FAST)
 def _grid_at(grid, cell, half, x, y):
     """Bilinear sample of a 2-D grid (`sim.shadows.LightMap`) at the plane point (x, y)
     [m] relative to the camera; 0 outside it or without one (cell 0)."""
@@ -556,15 +567,16 @@ def _plane_point(rays, p, R, o, max_range):
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _shade(
     rays, weight, starts, n_fine, R, o, asphalt, la, fa, grass, lg, fg, fine, coarse, lc, fc,
-    k_road, k_grass, paint, sun, sun_cell, sky_hidden, sky_cell, half, light_w, sky,
-    inv_gamma, max_range, pixel, centre, out_rgb, out_range,
+    k_road, k_grass, paint, sun, sun_cell, sky_hidden, sky_cell, half, near, near_cell,
+    light_w, sky, inv_gamma, max_range, pixel, centre, out_rgb, out_range,
 ):  # fmt: skip
     """The colour [DN] of every pixel (N,) into out_rgb[pixel] (HW, 3), and the range of
     its centre ray (N, 3) into out_range[pixel] (HW,) where it meets the plane: its
     probes' rays (P, 3) meet the plane seen from pose (R, o) and read the coverage (the
     fine window for the first n_fine pixels, else the coarse map) and the textures, each
     trilinear, lit as the grids of the sun and sky hidden say (`_grid_at`, weighted by
-    light_w (2,)); the part of the footprint off the plane is sky (linear, (3,))."""
+    light_w (2,), read on the blocks `_near` names); the part of the footprint off the
+    plane is sky (linear, (3,))."""
     for i in prange(len(starts) - 1):
         acc0, acc1, acc2 = 0.0, 0.0, 0.0
         cover = 0.0
@@ -613,12 +625,14 @@ def _shade(
                     kg = (1.0 - road) * k_grass
                     t0, t1, t2 = t0 + kg * g0, t1 + kg * g1, t2 + kg * g2
                 w = weight[p]
-                # light: 1 - the parts of the sun and sky hidden, weighted (`sim.shadows`)
-                lw = w * (
-                    1.0
-                    - light_w[0] * _grid_at(sun, sun_cell, half, x, y) / 255.0
-                    - light_w[1] * _grid_at(sky_hidden, sky_cell, half, x, y)
-                )
+                lw = w
+                if _near(near, near_cell, half, x, y):
+                    # light: 1 - the parts of the sun and sky hidden, weighted (`sim.shadows`)
+                    lw = w * (
+                        1.0
+                        - light_w[0] * _grid_at(sun, sun_cell, half, x, y) / 255.0
+                        - light_w[1] * _grid_at(sky_hidden, sky_cell, half, x, y)
+                    )
                 acc0 += lw * (t0 + mark * (paint[0] - t0))
                 acc1 += lw * (t1 + mark * (paint[1] - t1))
                 acc2 += lw * (t2 + mark * (paint[2] - t2))

@@ -33,6 +33,7 @@ CELL_M = 0.05  # [m] light grid cell (sun shadows), 0.02..0.1
 HALF_M = 40.0  # [m] the grid reaches this far from the camera along x and y
 OCCLUSION_CELL_M = 0.1  # [m] cell of the ambient occlusion, blurred then resampled
 OCCLUSION_SIGMA_M = 0.3  # [m] spread of the sky a vehicle hides around its footprint
+NEAR_CELL_M = 1.0  # [m] blocks of the grids that the kernel skips where both are 0
 _SUBPIXEL_BITS = 4  # cv2 fixed-point fraction bits of the polygons' corners
 
 _SUN = -SUN_TOWARDS / np.linalg.norm(SUN_TOWARDS)  # towards the sun (world)
@@ -46,7 +47,9 @@ class LightMap:
     -half_m + cell / 2 on both:
 
     sun: (N, N) uint8, 255 where the sun is hidden, over cells of sun_cell_m [m];
-    sky: (K, K) float32, 0..1 the part of the sky hidden, over cells of sky_cell_m [m].
+    sky: (K, K) float32, 0..1 the part of the sky hidden, over cells of sky_cell_m [m];
+    near: (B, B) uint8, 1 on the blocks of near_cell_m [m] where either may be nonzero
+    (their neighbours included): elsewhere the kernel reads neither.
     The kernel (`sim.ground`) forms `light` per probe. A cell of 0: lit everywhere."""
 
     sun: np.ndarray
@@ -54,6 +57,8 @@ class LightMap:
     sky: np.ndarray
     sky_cell_m: float
     half_m: float
+    near: np.ndarray
+    near_cell_m: float
 
     @staticmethod
     def weights() -> np.ndarray:
@@ -63,7 +68,8 @@ class LightMap:
     @staticmethod
     def lit() -> LightMap:
         """A map the kernel treats as fully lit (no vehicle near)."""
-        return LightMap(np.zeros((1, 1), np.uint8), 0.0, np.zeros((1, 1), np.float32), 0.0, 0.0)
+        none = np.zeros((1, 1), np.uint8)
+        return LightMap(none, 0.0, np.zeros((1, 1), np.float32), 0.0, 0.0, none, 0.0)
 
 
 def light(sun_hidden: np.ndarray, sky_hidden: np.ndarray) -> np.ndarray:
@@ -95,7 +101,18 @@ def cast_shadows(
     occ = _fill(foot, origin, OCCLUSION_CELL_M, half_m, hull_first=False)
     sigma = OCCLUSION_SIGMA_M / OCCLUSION_CELL_M
     sky = cv2.GaussianBlur(occ.astype(np.float32) * np.float32(1 / 255), (0, 0), sigma)
-    return LightMap(sun, CELL_M, sky, OCCLUSION_CELL_M, half_m)
+    # the blocks the grids may be nonzero on: each vehicle's shadow and footprint, grown
+    # by the blur's reach (OpenCV's kernel: 4 sigma) and a cell of antialiasing
+    b = int(round(2.0 * half_m / NEAR_CELL_M))
+    near = np.zeros((b, b), np.uint8)
+    grow = 4.0 * OCCLUSION_SIGMA_M + 2.0 * OCCLUSION_CELL_M
+    for shade, rect in zip(cast.reshape(len(foot), -1, 2), foot, strict=True):
+        lo = np.minimum(shade.min(axis=0), rect.min(axis=0) - grow) - origin
+        hi = np.maximum(shade.max(axis=0), rect.max(axis=0) + grow) - origin
+        i0, j0 = np.clip(np.floor(lo / NEAR_CELL_M).astype(int) - 1, 0, b)
+        i1, j1 = np.clip(np.floor(hi / NEAR_CELL_M).astype(int) + 2, 0, b)
+        near[j0:j1, i0:i1] = 1  # and a block around: a bilinear read reaches one cell
+    return LightMap(sun, CELL_M, sky, OCCLUSION_CELL_M, half_m, near, NEAR_CELL_M)
 
 
 def _fill(

@@ -1,5 +1,7 @@
 """`omnibench bench render`: what it reports (keys), not how fast."""
 
+import pytest
+
 from sim.bench import bench_render
 
 
@@ -21,3 +23,11 @@ def test_bench_render_reports_wall_and_cpu_time_per_frame_and_its_stages():
     assert set(res["stages_ms"]) == {
         "vehicles", "objects_gl", "plane_after_gl", "composite", "motion", "sensor",
     }  # fmt: skip
+
+
+def test_bench_render_times_shadows_and_refuses_them_on_the_cube_renderer():
+    cam = {"preset": "omni-far", "width": 160, "height": 160}
+    res = bench_render(n_frames=2, camera=cam, vehicles=4, warmup=1, shadows=True)
+    assert res["shadows"] is True and res["frames"] == 2
+    with pytest.raises(ValueError, match="shadows"):
+        bench_render(n_frames=2, camera=cam, vehicles=4, warmup=1, renderer="cube", shadows=True)

@@ -73,6 +73,19 @@ def test_the_sun_is_hidden_where_a_ray_to_the_sun_meets_the_car(yaw):
     np.testing.assert_array_equal(hidden[check], truth[check])
 
 
+def test_the_kernel_skips_only_blocks_where_both_grids_are_zero():
+    lm = cast_shadows([_car(3.0, 2.0, 0.5), _car(-12.0, 7.0, 2.0, vid=2)], np.zeros(2))
+    b = lm.near.shape[0]
+    for grid in (lm.sun, lm.sky):
+        n = grid.shape[0] // b
+        blocks = grid.reshape(b, n, b, n).max(axis=(1, 3)) > 0
+        assert blocks.any() and not np.any(blocks & (lm.near == 0))
+        # bilinear reads reach a neighbour cell: the blocks around a nonzero one are read
+        ring = np.pad(blocks, 1)[:-2, 1:-1] | np.pad(blocks, 1)[2:, 1:-1]
+        assert not np.any(ring & (lm.near == 0))
+    assert lm.near.sum() <= 2 * 100  # [blocks] at most ~12 m x 8 m around each car
+
+
 def test_the_sky_is_hidden_under_the_car_and_less_with_distance():
     car = _car(0.0, 0.0, 0.0)
     lm = cast_shadows([car], np.zeros(2))
@@ -118,6 +131,8 @@ def test_the_plane_is_shaded_by_the_light_left(sun_hidden, sky_hidden):
         np.full((n, n), np.float32(sky_hidden)),
         0.5,
         100.0,
+        np.ones((200, 200), np.uint8),
+        1.0,
     )
     H, W = cam.height, cam.width
     image = np.zeros((H, W, 3), np.float32)
