@@ -448,7 +448,6 @@ def render_drive(
     if manifest.get("complete") and manifest.get("frames") == n:  # nothing to simulate either
         _write_body_mask(out_dir)  # renders made before drives held one
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
-    check_renderer(scenario, renderer)  # before the simulation
     drive = prepare_drive(scenario, max_frames, face_px, renderer)
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)

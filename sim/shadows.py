@@ -13,8 +13,10 @@ vehicles always show this dark contact where they meet the road; an image withou
 shows a vehicle's lower edge against the road with no contrast. The camera's own car
 casts none (its shadow would be fixed in the image, as its body is).
 
-The light is drawn into a grid of `CELL_M` cells around the camera, `HALF_M` each way,
-read bilinearly by the plane's kernel (`sim.ground`); beyond it the road is fully lit.
+What hides the sun is drawn into a grid of `CELL_M` cells, what hides the sky into one of
+`OCCLUSION_CELL_M`, both `HALF_M` each way around the camera; the plane's kernel
+(`sim.ground`) reads them bilinearly, only on the `NEAR_CELL_M` blocks near a vehicle.
+Beyond the grids the road is fully lit.
 """
 
 from __future__ import annotations
