@@ -152,7 +152,11 @@ class OmniEnvRenderer:
             single = len(getattr(base, "controlled_vehicles", ()) or ()) <= 1
             T_ref = camera_pose(T_world_car(0.0, 0.0, 0.0), self.mount, None, 0.0)
             self._renderer = PlaneFrameRenderer(
-                self.camera, T_ref.T_world_nominal, self.face_px, cache_body=single
+                self.camera,
+                T_ref.T_world_nominal,
+                self.face_px,
+                cache_body=single,
+                shadows=self.config.shadows,
             )
             self.world.invalidate()  # the new renderer needs the window's meshes
             self._static_episode = None

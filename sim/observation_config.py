@@ -33,6 +33,7 @@ class OmniObservationConfig(BaseModel):
     tile_m: side of a world tile [m].
     world_seed: fixed seed of the static world (default: from the episode seed).
     sensor: ``SensorConfig`` keys; every effect is off unless given.
+    shadows: the vehicles cast shadows on the road (`sim.shadows`).
     vibration: ``VibrationConfig`` keys (amplitude_deg, frequency_hz); None = none.
         A tilted camera can be very slow on llvmpipe: its anisotropic texture
         filtering (sim/gl.py) took 5-30 s per frame at some poses with tilts of
@@ -51,6 +52,7 @@ class OmniObservationConfig(BaseModel):
     tile_m: float = Field(60.0, ge=10.0, le=1000.0)  # [m]
     world_seed: int | None = Field(None, ge=0)
     sensor: SensorConfig = SensorConfig.exact()
+    shadows: bool = False
     vibration: VibrationConfig | None = None
 
     @field_validator("type")

@@ -138,3 +138,21 @@ def test_motion_blur_blurs_the_frames_after_the_first():
         frames[blur] = first.astype(float), second.astype(float)
     change = [np.abs(b - s).mean() for b, s in zip(frames[True], frames[False], strict=True)]
     assert change[0] < 0.1 and change[1] > 0.3, change  # [DN] (measured 0.02 and 1.34)
+
+
+def test_shadows_darken_only_the_road():
+    """``shadows: true``: the same frame with the road darker near the vehicles, nothing
+    brighter."""
+    frames = {}
+    for shadows in (False, True):
+        cfg = {"type": OBSERVATION_TYPE, "shadows": shadows, "vibration": None}
+        cfg["camera"] = {"preset": "omni-near", "width": 96, "height": 96}
+        env_config = {"observation": cfg, "vehicles_density": 3}
+        e = gymnasium.make("highway-v0", config=env_config)
+        try:
+            frames[shadows] = e.reset(seed=0)[0].astype(int)
+        finally:
+            e.close()
+    changed = np.any(frames[True] != frames[False], axis=2)
+    assert 0 < changed.sum() < 0.1 * changed.size
+    assert np.all(frames[True][changed] <= frames[False][changed])
