@@ -46,6 +46,7 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("surround-tune", 20, 10),
         ("surround-check", 20, 10),
         ("surround-shadows", 20, 10),
+        ("surround-tune-shadows", 20, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
@@ -57,9 +58,14 @@ def test_shipped_suites_load(name, jobs, drives):
     assert s.spec.role in ("tuning", "check", "regression")
 
 
-def test_the_shadows_suite_is_surround_check_with_shadows():
-    """The same drives and jobs as surround-check, each with shadows: other renders."""
-    check, shadows = load_suite("surround-check"), load_suite("surround-shadows")
+@pytest.mark.parametrize(
+    "plain, shaded",
+    [("surround-check", "surround-shadows"), ("surround-tune", "surround-tune-shadows")],
+)
+def test_the_shadows_suites_are_their_surround_suites_with_shadows(plain, shaded):
+    """The same drives and jobs, each with shadows: other renders."""
+    check, shadows = load_suite(plain), load_suite(shaded)
+    assert check.spec.role == shadows.spec.role
     assert all(j.scenario.shadows for j in shadows.jobs)
     assert not any(j.scenario.shadows for j in check.jobs)
     strip = [j.scenario.model_copy(update={"shadows": False}) for j in shadows.jobs]
