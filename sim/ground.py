@@ -36,16 +36,12 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numba import njit, prange
 
 from estimator.camera.models import CameraModel
-
-if TYPE_CHECKING:
-    from sim.shadows import LightMap
 
 PIXEL_SIGMA_PX = 0.5  # [px] std of a camera pixel's Gaussian response, 0.3..1
 MAX_PROBES = 8  # [-] most probes along a footprint's major axis, 1..32
@@ -297,6 +293,36 @@ class GroundLook:
 
 
 @dataclass
+class LightMap:
+    """What hides the light from the plane around a camera (`sim.shadows.cast_shadows`),
+    on grids centred on the camera's (x, y), rows along y and columns along x, cell
+    (0, 0)'s centre at -half_m + cell / 2 on both:
+
+    sun: (N, N) uint8, 255 where the sun is hidden, over cells of sun_cell_m [m];
+    sky: (K, K) float32, 0..1 the part of the sky hidden, over cells of sky_cell_m [m];
+    near: (B, B) uint8, 1 on the blocks of near_cell_m [m] where either may be nonzero
+    (their neighbours included): elsewhere the kernel reads neither;
+    weights: (2,) what hiding all the sun, all the sky takes off the open road's light.
+    A cell of 0: lit everywhere."""
+
+    sun: np.ndarray
+    sun_cell_m: float
+    sky: np.ndarray
+    sky_cell_m: float
+    half_m: float
+    near: np.ndarray
+    near_cell_m: float
+    weights: np.ndarray
+
+    @staticmethod
+    def lit() -> LightMap:
+        """A map the kernel treats as fully lit (no vehicle near)."""
+        none = np.zeros((1, 1), np.uint8)
+        sky = np.zeros((1, 1), np.float32)
+        return LightMap(none, 0.0, sky, 0.0, 0.0, none, 0.0, np.zeros(2))
+
+
+@dataclass
 class GroundImage:
     """The plane seen from one pose: rgb (H, W, 3) float32 [DN] where hit (blended with
     the sky where part of a pixel's footprint misses the plane), range_m (H, W) float32
@@ -400,18 +426,12 @@ class GroundRenderer:
     ) -> np.ndarray:
         """Draw the plane seen from T_world_cam (4, 4) into image (H, W, 3) float32 [DN]
         and range_m (H, W) float32 [m] (where a pixel's centre ray meets it), lit as light
-        says (`sim.shadows.cast_shadows` around the camera; default: fully lit); returns
+        says (`LightMap`, `sim.shadows.cast_shadows` around the camera; default: fully
+        lit); returns
         the (H, W) bool pixels drawn."""
         R, o = T_world_cam[:3, :3].astype(np.float64), T_world_cam[:3, 3].astype(np.float64)
         cm, look = self.coverage, self.look
-        if light is None:
-            sun, sun_cell = np.zeros((1, 1), np.uint8), 0.0
-            sky, sky_cell, half = np.zeros((1, 1), np.float32), 0.0, 0.0
-            near, near_cell, light_w = np.zeros((1, 1), np.uint8), 0.0, np.zeros(2)
-        else:
-            sun, sun_cell = light.sun, float(light.sun_cell_m)
-            sky, sky_cell, half = light.sky, float(light.sky_cell_m), float(light.half_m)
-            near, near_cell, light_w = light.near, float(light.near_cell_m), light.weights()
+        lm = LightMap.lit() if light is None else light
         cm.follow(float(o[0]), float(o[1]))
         paint = np.asarray(look.marking_albedo, np.float64) * look.k_marking
         _shade(
@@ -421,7 +441,8 @@ class GroundRenderer:
             _atlas_args(cm.fine, o), _atlas_args(cm.coarse, o),
             self.lvl_cover[0], self.lvl_cover[1],
             float(look.k_road), float(look.k_grass), paint,
-            sun, sun_cell, sky, sky_cell, half, near, near_cell, light_w, self.sky_linear,
+            lm.sun, float(lm.sun_cell_m), lm.sky, float(lm.sky_cell_m), float(lm.half_m),
+            lm.near, float(lm.near_cell_m), np.asarray(lm.weights, np.float64), self.sky_linear,
             1.0 / DISPLAY_GAMMA, MAX_RANGE_M, self.pixel, self.centre_rays,
             image.reshape(-1, 3), range_m.reshape(-1),
         )  # fmt: skip
@@ -524,7 +545,7 @@ def _cover_at(args, level, frac, x, y):
 @njit(cache=True, inline="always", fastmath=_FAST)
 def _near(near, cell, half, x, y):
     """Whether the plane point (x, y) [m] relative to the camera lies on a block of the
-    light grids that is not fully lit (`sim.shadows.LightMap.near`; never without one)."""
+    light grids that is not fully lit (`LightMap.near`; never without one)."""
     if cell <= 0.0:
         return False
     i = int(np.floor((x + half) / cell))
@@ -534,7 +555,7 @@ def _near(near, cell, half, x, y):
 
 @njit(cache=True, inline="always", fastmath=_FAST)
 def _grid_at(grid, cell, half, x, y):
-    """Bilinear sample of a 2-D grid (`sim.shadows.LightMap`) at the plane point (x, y)
+    """Bilinear sample of a 2-D grid (`LightMap`) at the plane point (x, y)
     [m] relative to the camera; 0 outside it or without one (cell 0)."""
     if cell <= 0.0:
         return 0.0

@@ -22,12 +22,12 @@ Beyond the grids the road is fully lit.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from sim.coded_scene import AMBIENT, SUN_DIFFUSE, SUN_TOWARDS
+from sim.ground import LightMap
 from sim.highway import VehicleState
 from sim.scene import vehicle_solids
 
@@ -40,38 +40,8 @@ _SUBPIXEL_BITS = 4  # cv2 fixed-point fraction bits of the polygons' corners
 
 _SUN = -SUN_TOWARDS / np.linalg.norm(SUN_TOWARDS)  # towards the sun (world)
 SUN_DIRECT = float(SUN_DIFFUSE * _SUN[2])  # [-] the sun's part of the road's irradiance
-
-
-@dataclass
-class LightMap:
-    """What hides the light from the plane around a camera, on grids centred on the
-    camera's (x, y), rows along y and columns along x, cell (0, 0)'s centre at
-    -half_m + cell / 2 on both:
-
-    sun: (N, N) uint8, 255 where the sun is hidden, over cells of sun_cell_m [m];
-    sky: (K, K) float32, 0..1 the part of the sky hidden, over cells of sky_cell_m [m];
-    near: (B, B) uint8, 1 on the blocks of near_cell_m [m] where either may be nonzero
-    (their neighbours included): elsewhere the kernel reads neither.
-    The kernel (`sim.ground`) forms `light` per probe. A cell of 0: lit everywhere."""
-
-    sun: np.ndarray
-    sun_cell_m: float
-    sky: np.ndarray
-    sky_cell_m: float
-    half_m: float
-    near: np.ndarray
-    near_cell_m: float
-
-    @staticmethod
-    def weights() -> np.ndarray:
-        """(2,) what hiding all the sun, all the sky takes off the open road's light."""
-        return np.array([SUN_DIRECT, AMBIENT]) / (AMBIENT + SUN_DIRECT)
-
-    @staticmethod
-    def lit() -> LightMap:
-        """A map the kernel treats as fully lit (no vehicle near)."""
-        none = np.zeros((1, 1), np.uint8)
-        return LightMap(none, 0.0, np.zeros((1, 1), np.float32), 0.0, 0.0, none, 0.0)
+# what hiding all the sun, all the sky takes off the open road's light [-]
+LIGHT_WEIGHTS = np.array([SUN_DIRECT, AMBIENT]) / (AMBIENT + SUN_DIRECT)
 
 
 def light(sun_hidden: np.ndarray, sky_hidden: np.ndarray) -> np.ndarray:
@@ -114,7 +84,7 @@ def cast_shadows(
         i0, j0 = np.clip(np.floor(lo / NEAR_CELL_M).astype(int) - 1, 0, b)
         i1, j1 = np.clip(np.floor(hi / NEAR_CELL_M).astype(int) + 2, 0, b)
         near[j0:j1, i0:i1] = 1  # and a block around: a bilinear read reaches one cell
-    return LightMap(sun, CELL_M, sky, OCCLUSION_CELL_M, half_m, near, NEAR_CELL_M)
+    return LightMap(sun, CELL_M, sky, OCCLUSION_CELL_M, half_m, near, NEAR_CELL_M, LIGHT_WEIGHTS)
 
 
 def _fill(

@@ -4,15 +4,16 @@ plane shaded by what is left of the light, and no shadow of the camera's own car
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
 from sim.coded_scene import AMBIENT, SUN_TOWARDS
-from sim.ground import DISPLAY_GAMMA
+from sim.ground import DISPLAY_GAMMA, LightMap
 from sim.highway import VehicleState
 from sim.scene import vehicle_triangles
-from sim.shadows import SUN_DIRECT, LightMap, cast_shadows, light
+from sim.shadows import LIGHT_WEIGHTS, SUN_DIRECT, cast_shadows, light
 from tests.sim.test_ground import _setup
 
 
@@ -81,7 +82,7 @@ def test_the_kernel_skips_only_blocks_where_both_grids_are_zero():
         blocks = grid.reshape(b, n, b, n).max(axis=(1, 3)) > 0
         assert blocks.any() and not np.any(blocks & (lm.near == 0))
         # bilinear reads reach a neighbour cell: the blocks around a nonzero one are read
-        ring = np.pad(blocks, 1)[:-2, 1:-1] | np.pad(blocks, 1)[2:, 1:-1]
+        ring = cv2.dilate(blocks.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         assert not np.any(ring & (lm.near == 0))
     assert lm.near.sum() <= 2 * 100  # [blocks] at most ~12 m x 8 m around each car
 
@@ -115,7 +116,10 @@ def test_light_is_the_ambient_part_in_full_shadow_and_one_in_the_open():
         AMBIENT / (AMBIENT + SUN_DIRECT)
     )
     assert light(np.float32(1.0), np.float32(1.0)) == pytest.approx(0.0, abs=1e-7)
-    np.testing.assert_allclose(LightMap.weights(), [1 - light(1.0, 0.0), 1 - light(0.0, 1.0)])
+    np.testing.assert_allclose(LIGHT_WEIGHTS, [1 - light(1.0, 0.0), 1 - light(0.0, 1.0)])
+    lm = cast_shadows([_car(0.0, 0.0, 0.0)], np.zeros(2))
+    np.testing.assert_array_equal(lm.weights, LIGHT_WEIGHTS)
+    assert not np.any(LightMap.lit().weights)
 
 
 @pytest.mark.parametrize("sun_hidden, sky_hidden", [(1.0, 0.0), (1.0, 0.5), (0.0, 1.0)])
@@ -133,6 +137,7 @@ def test_the_plane_is_shaded_by_the_light_left(sun_hidden, sky_hidden):
         100.0,
         np.ones((200, 200), np.uint8),
         1.0,
+        LIGHT_WEIGHTS,
     )
     H, W = cam.height, cam.width
     image = np.zeros((H, W, 3), np.float32)
