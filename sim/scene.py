@@ -678,8 +678,9 @@ BODY, GLASS, TYRE, HEADLIGHT, TAILLIGHT = range(5)
 
 def _car_template() -> tuple[np.ndarray, ...]:
     """(V, 3) vertices, (F, 3) faces, (V, 3) normals, (V,) part roles of the car, and
-    (V,) the convex solid each vertex belongs to (0: lower body, wheels and lights;
-    1: hood rise; 2: greenhouse): the car is the union of their convex hulls."""
+    (V,) the convex solid each vertex belongs to (0: lower body and lights; 1: hood rise;
+    2: greenhouse; 3-6: the wheels): the car is the union of their convex hulls, with the
+    gap under the body open."""
     parts: list[tuple[np.ndarray, ...]] = []
 
     def add(vfn: tuple[np.ndarray, ...], role: np.ndarray | int, solid: int = 0) -> None:
@@ -703,9 +704,8 @@ def _car_template() -> tuple[np.ndarray, ...]:
     cyl.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
     wv, wf, wn = _unmerged(cyl)
     wv = wv - (0.0, 0.0, wv[:, 2].min())  # the lowest tread vertex touches the road
-    for x in (-1.6, 1.6):
-        for y in (-hw + 0.12, hw - 0.12):
-            add((wv + (x, y, 0.0), wf, wn), TYRE)
+    for k, (x, y) in enumerate([(x, y) for x in (-1.6, 1.6) for y in (-hw + 0.12, hw - 0.12)]):
+        add((wv + (x, y, 0.0), wf, wn), TYRE, 3 + k)
     for y0, y1 in ((-0.85, -0.5), (0.5, 0.85)):
         add(_box((hl - 0.01, y0, 0.58), (hl + 0.02, y1, 0.70)), HEADLIGHT)
         add(_box((-hl - 0.02, y0, 0.62), (-hl + 0.01, y1, 0.74)), TAILLIGHT)
@@ -720,7 +720,9 @@ def _car_template() -> tuple[np.ndarray, ...]:
 _CAR = _car_template()
 _CAR_CORNERS = _CAR[0][_CAR[1]].reshape(-1, 3)  # (3F, 3) the template's triangle corners
 # (K, 3) corners of the hulls of its convex solids, padded by repeating a corner
-_CAR_SOLIDS = [trimesh.convex.convex_hull(_CAR[0][_CAR[4] == k]).vertices for k in range(3)]
+_CAR_SOLIDS = [
+    trimesh.convex.convex_hull(_CAR[0][_CAR[4] == k]).vertices for k in range(_CAR[4].max() + 1)
+]
 _CAR_SOLID_PTS = np.stack(
     [np.vstack([h, np.repeat(h[:1], max(map(len, _CAR_SOLIDS)) - len(h), 0)]) for h in _CAR_SOLIDS]
 )
