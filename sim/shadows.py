@@ -16,10 +16,10 @@ casts none (its shadow would be fixed in the image, as its body is).
 
 What hides the sun is drawn into a grid of `CELL_M` cells, what hides the sky into one of
 `OCCLUSION_CELL_M` (each vehicle's table turned into place; where several hide the sky,
-the shares they leave visible multiply), both `HALF_M` each way around the camera; the
-plane's kernel
-(`sim.ground`) reads them bilinearly, only on the `NEAR_CELL_M` blocks near a vehicle.
-Beyond the grids the road is fully lit.
+the shares they leave visible multiply, as if the directions they hide were independent),
+both `HALF_M` each way around the camera; the plane's kernel (`sim.ground`) reads them
+bilinearly, only on the `NEAR_CELL_M` blocks near a vehicle. Beyond the grids the road is
+fully lit.
 """
 
 from __future__ import annotations
