@@ -574,8 +574,8 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     """Where detection fails: recall and precision by range band (`RANGE_BANDS_M`) and by
     bearing sector (`sector`), recall by the vehicles' motion (`MOTION_CLASSES`;
     a hypothesis has no motion, so no precision there), what the unmatched hypotheses are
-    (`unmatched_split`), and every metric of `evaluate` over the frames where the ego car
-    moves and over those where it is stopped.
+    (`unmatched_split`), and every metric of `evaluate` and the three breakdowns over the
+    frames where the ego car moves and over those where it is stopped.
 
     A vehicle is placed by its footprint point nearest the camera, a hypothesis by its
     own point; a matched pair counts in the vehicle's bin for recall and in the
@@ -584,13 +584,6 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     cfg = config if config is not None else MetricsConfig()
     frames = list(frames)
     placed = _Placed.of(frames, cfg)
-    motion = {}
-    classes = np.array([m or "unknown" for m in placed.motion], dtype=object)
-    for name in MOTION_CLASSES + ("unknown",):
-        sel = classes == name
-        n, m = int(sel.sum()), int((sel & placed.found).sum())
-        if name != "unknown" or n:
-            motion[name] = {"gt_count": n, "matched": m, "recall": ratio(m, n)}
     ego = {}
     for state, moving in (("moving", True), ("stopped", False)):
         sub = [f for f in frames if f.ego_moving == moving]
@@ -598,13 +591,29 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
         ego[state] = {
             "frames": len(sub),
             **{key: m[key] for key in ("detection", "tracking", "localization")},
+            **_where(_Placed.of(sub, cfg)),
         }
+    return {
+        **_where(placed),
+        "unmatched": unmatched_split(placed, cfg.gate_m),
+        "ego_state": ego,
+    }
+
+
+def _where(placed: _Placed) -> dict:
+    """{"range_bands", "sectors", "motion"} of `breakdown` for the placed vehicles and
+    hypotheses."""
+    motion = {}
+    classes = np.array([m or "unknown" for m in placed.motion], dtype=object)
+    for name in MOTION_CLASSES + ("unknown",):
+        sel = classes == name
+        n, m = int(sel.sum()), int((sel & placed.found).sum())
+        if name != "unknown" or n:
+            motion[name] = {"gt_count": n, "matched": m, "recall": ratio(m, n)}
     return {
         "range_bands": _bins(placed, BAND_NAMES, band_labels),
         "sectors": _bins(placed, SECTORS, _sector_labels),
         "motion": motion,
-        "unmatched": unmatched_split(placed, cfg.gate_m),
-        "ego_state": ego,
     }
 
 

@@ -87,6 +87,14 @@ def _surround_section(surround: dict) -> str:
         }
         cols = ("frames", "recall", "precision", "mota", "idf1", "hota", "median_error_m")
         parts.append(f"<h3>by the ego car's state</h3>{_rows_table(rows, cols)}")
+        moving = b["ego_state"].get("moving", {})
+        if "range_bands" in moving:
+            parts.append(
+                "<h3>ego car moving: by range</h3>"
+                + _rows_table(moving["range_bands"], ("recall", "precision", "gt_count", "matched"))
+                + "<h3>ego car moving: by motion relative to the ego car</h3>"
+                + _rows_table(moving["motion"], ("recall", "gt_count", "matched"))
+            )
     seg = surround.get("segmentation")
     if isinstance(seg, dict):
         parts.append(

@@ -383,6 +383,16 @@ def test_breakdown_counts_by_band_sector_motion_and_ego_state():
     assert ego["moving"]["detection"]["recall"] == pytest.approx(2 / 3)
     assert ego["moving"]["detection"]["precision"] == pytest.approx(2 / 3)
     assert ego["stopped"]["detection"]["recall"] == 1.0
+    # the breakdowns over each state's frames: the left vehicle once in each
+    mo_moving, mo_stopped = ego["moving"]["motion"], ego["stopped"]["motion"]
+    assert (mo_moving["co-moving"]["gt_count"], mo_moving["crossing"]["gt_count"]) == (1, 1)
+    assert mo_moving["crossing"]["recall"] == 0.0 and mo_moving["overtaken"]["recall"] == 1.0
+    assert (mo_stopped["co-moving"]["gt_count"], mo_stopped["co-moving"]["recall"]) == (1, 1.0)
+    assert mo_stopped["crossing"]["gt_count"] == 0
+    assert ego["moving"]["range_bands"]["15-25 m"]["gt_count"] == 1
+    assert ego["moving"]["range_bands"]["0-5 m"]["hyp_count"] == 2
+    assert ego["stopped"]["range_bands"]["0-5 m"]["gt_count"] == 1
+    assert ego["stopped"]["sectors"]["left"]["recall"] == 1.0
 
 
 def test_unmatched_hypotheses_split_into_duplicate_misplaced_and_clutter():
