@@ -28,7 +28,11 @@ def _summary(tmp_path, role="check"):
             "ego.angle_rmse_deg": 0.0551,
             "detection.gt_count": 149.0,
             "detection.recall": 0.93,
-            "tracking.hota": float("nan"),
+            "surround.tracks.ego_state.moving.detection.gt_count": 140.0,
+            "surround.tracks.ego_state.moving.detection.recall": 0.91,
+            "surround.tracks.ego_state.moving.tracking.mota": 0.88,
+            "surround.tracks.ego_state.moving.tracking.hota": float("nan"),
+            "surround.tracks.ego_state.stopped.detection.gt_count": 9.0,
         },
     }
     failed = {"label": "merge | omni-far | features | seed 3", "status": "error", "error": "boom"}
@@ -58,7 +62,8 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     assert "commit `abc123`" in page and "check-x-1" in page
     assert "check suite" in page
     assert "| merge-omni-far | omni-far | direct | 3 | 150 | 1.23 | 8.00 | 0.346 | 0.055 |" in page
-    assert "| 149 | 0.93 |" in page
+    # the tracks over the frames where the ego car moves, then the detections' own recall
+    assert "| 140 | 0.91 | – | 0.88 | – | – | – | – | 9 | 0.93 |" in page
     assert "1 jobs did not finish" in page and "boom" in page
     assert "| estimate | 12.5 | 14.0 | 80.00 | 12 | 40 |" in page
 
@@ -87,7 +92,9 @@ def test_readme_headline_block_is_replaced_and_nothing_else(tmp_path):
     )
 
     block = headline_markdown([load_summary(_summary(tmp_path))])
-    assert "| `check-x` | check | 1 | 1.23 | 0.35 | 0.055 | 0.93 |" in block
+    assert (
+        "| `check-x` | check | 1 | 1.23 | 0.35 | 0.055 | 0.91 |" in block
+    )  # the tracks, ego moving
     readme = f"# title\n\n{README_BEGIN}\nold figures\n{README_END}\n\nmore text\n"
     new = replace_readme_block(readme, block)
     assert "old figures" not in new and block in new
