@@ -45,7 +45,11 @@ def render(
     out: Path = typer.Option(
         ..., "--out", help="output folder (resumes if it holds a partial render)"
     ),
-    frames: int | None = typer.Option(None, help="render only the first N frames"),
+    frames: int | None = typer.Option(
+        None,
+        help="render only the first N frames (a drive of N frames: its scenery, laid out "
+        "along its path, differs from the full drive's)",
+    ),
     face_px: int | None = typer.Option(None, help="cube-map face size [px]"),
     renderer: str = typer.Option(
         "plane", help="plane (road drawn per pixel, the default) or cube (all by cube faces)"
@@ -188,7 +192,11 @@ def run(
     estimator: str = typer.Option(
         "direct", help="direct | can-only | features | a plug-in package.module:ClassName"
     ),
-    frames: int | None = typer.Option(None, help="only the first N frames"),
+    frames: int | None = typer.Option(
+        None,
+        help="only the first N frames (a drive of N frames: its scenery, laid out along its "
+        "path, differs from the full drive's)",
+    ),
     road_mask: str | None = typer.Option(
         None, help="'gt': give the estimator the true road mask (a diagnostic ceiling)"
     ),
