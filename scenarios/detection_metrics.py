@@ -481,7 +481,8 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
 class _Placed:
     """Every vehicle and hypothesis of a sequence, relative to the camera foot, and whether
     detection matched it: vehicles by their footprint point nearest the camera (G, 2),
-    found (G,), motion (G,) class; hypotheses by their own point (H, 2), matched (H,)."""
+    found (G,), motion (G,) class; hypotheses by their own point (H, 2), matched (H,);
+    the index of each one's frame in the sequence, gt_frame (G,) and hyp_frame (H,)."""
 
     gt_xy: np.ndarray
     found: np.ndarray
@@ -489,6 +490,8 @@ class _Placed:
     hyp_xy: np.ndarray
     matched: np.ndarray
     hyp_gt_m: np.ndarray  # (H,) [m] footprint distance to the frame's nearest vehicle (inf: none)
+    gt_frame: np.ndarray
+    hyp_frame: np.ndarray
 
     @staticmethod
     def of(frames: Sequence[EvalFrame], cfg: MetricsConfig) -> _Placed:
@@ -506,6 +509,23 @@ class _Placed:
             np.asarray([frames[k].hyp_xy[c] - cam for k, c in hyp], float).reshape(-1, 2),
             np.array([(k, c) in hyp_hit for k, c in hyp], bool),
             np.array([dists[k][:, c].min(initial=np.inf) for k, c in hyp], float).reshape(-1),
+            np.array([k for k, _, _ in gt], int),
+            np.array([k for k, _ in hyp], int),
+        )
+
+    def of_frames(self, keep: np.ndarray) -> _Placed:
+        """The vehicles and hypotheses of the frames where keep (frames,) is true (each
+        frame is matched on its own, so its matches stay what they are)."""
+        g, h = keep[self.gt_frame], keep[self.hyp_frame]
+        return _Placed(
+            self.gt_xy[g],
+            self.found[g],
+            [m for m, k in zip(self.motion, g, strict=True) if k],
+            self.hyp_xy[h],
+            self.matched[h],
+            self.hyp_gt_m[h],
+            self.gt_frame[g],
+            self.hyp_frame[h],
         )
 
 
@@ -585,13 +605,15 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     frames = list(frames)
     placed = _Placed.of(frames, cfg)
     ego = {}
+    moving_frames = np.array([f.ego_moving for f in frames], bool)
     for state, moving in (("moving", True), ("stopped", False)):
-        sub = [f for f in frames if f.ego_moving == moving]
+        keep = moving_frames == moving
+        sub = [f for f, k in zip(frames, keep, strict=True) if k]
         m = evaluate(sub, cfg)
         ego[state] = {
             "frames": len(sub),
             **{key: m[key] for key in ("detection", "tracking", "localization")},
-            **_where(_Placed.of(sub, cfg)),
+            **_where(placed.of_frames(keep)),
         }
     return {
         **_where(placed),

@@ -427,8 +427,7 @@ class GroundRenderer:
         """Draw the plane seen from T_world_cam (4, 4) into image (H, W, 3) float32 [DN]
         and range_m (H, W) float32 [m] (where a pixel's centre ray meets it), lit as light
         says (`LightMap`, `sim.shadows.cast_shadows` around the camera; default: fully
-        lit); returns
-        the (H, W) bool pixels drawn."""
+        lit); returns the (H, W) bool pixels drawn."""
         R, o = T_world_cam[:3, :3].astype(np.float64), T_world_cam[:3, 3].astype(np.float64)
         cm, look = self.coverage, self.look
         lm = LightMap.lit() if light is None else light

@@ -863,17 +863,13 @@ def vehicle_triangles(
     return corners, albedo, np.repeat(ids, len(tf))
 
 
-def vehicle_solids(vehicles: Sequence[VehicleState]) -> tuple[np.ndarray, np.ndarray]:
+def vehicle_solids(vehicles: Sequence[VehicleState]) -> np.ndarray:
     """(M, S, K, 3) corners [m] (world) of the S convex solids whose union is each
-    vehicle, as `vehicles_mesh` poses the template, and (M, 4, 2) corners [m] of each
-    footprint (length x width)."""
+    vehicle, as `vehicles_mesh` poses the template."""
     xy, yaw, scale, _ = _vehicle_poses(vehicles)
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
     S, K = _CAR_SOLID_PTS.shape[:2]
-    hull = _posed_points(_CAR_SOLID_PTS.reshape(-1, 3), xy, c, s, scale).reshape(-1, S, K, 3)
-    rect = np.array([[1, 1, 0], [1, -1, 0], [-1, -1, 0], [-1, 1, 0]]) * (_REF_L / 2, _REF_W / 2, 0)
-    foot = _posed_points(rect, xy, c, s, scale)[..., :2]
-    return hull, foot
+    return _posed_points(_CAR_SOLID_PTS.reshape(-1, 3), xy, c, s, scale).reshape(-1, S, K, 3)
 
 
 def vehicle_corners_world(v: VehicleState) -> np.ndarray:

@@ -75,7 +75,7 @@ def cast_shadows(
     if not others:
         return LightMap.lit()
     origin = np.asarray(camera_xy, float) - half_m  # world (x, y) of the grids' corner
-    solids = vehicle_solids(others)[0]  # (M, S, K, 3)
+    solids = vehicle_solids(others)  # (M, S, K, 3)
     # sun: every solid's corners slid along the sunlight down to the road, their outline
     cast = solids[..., :2] - (solids[..., 2:3] / _SUN[2]) * _SUN[:2]  # (M, S, K, 2)
     n = int(round(2.0 * half_m / CELL_M))
@@ -97,8 +97,9 @@ def cast_shadows(
 
 @functools.lru_cache(maxsize=256)
 def _sky_hidden_table(length_m: float, width_m: float, height_m: float) -> np.ndarray:
+    """`sky_hidden_table`'s table for a vehicle of this size [m] (read-only, cached)."""
     v = VehicleState(0, 0.0, 0.0, 0.0, 0.0, length_m, width_m, height_m, 0.0, False, False)
-    solids = vehicle_solids([v])[0][0]  # (S, K, 3) in the vehicle's frame
+    solids = vehicle_solids([v])[0]  # (S, K, 3) in the vehicle's frame
     cell, reach = OCCLUSION_CELL_M / _TABLE_SUBCELLS, OCCLUSION_REACH_M
     origin = -np.array([length_m / 2 + reach, width_m / 2 + reach])
     n = np.ceil(-2.0 * origin / OCCLUSION_CELL_M - 1e-6).astype(int) * _TABLE_SUBCELLS
@@ -131,12 +132,6 @@ def sky_hidden_table(v: VehicleState) -> tuple[np.ndarray, np.ndarray]:
     return _sky_hidden_table(*dims), -np.array([dims[0] / 2, dims[1] / 2]) - OCCLUSION_REACH_M
 
 
-def _rot_t(v: VehicleState) -> np.ndarray:
-    """(2, 2) rotation from the world's (x, y) to vehicle v's frame."""
-    c, s = np.cos(v.yaw_rad), np.sin(v.yaw_rad)
-    return np.array([[c, s], [-s, c]])
-
-
 def _sky_hidden(vehicles: Sequence[VehicleState], origin: np.ndarray, half_m: float) -> np.ndarray:
     """(N, N) float32 share of the sky hidden on the grid of `OCCLUSION_CELL_M` cells from
     origin (2,) [m, world]: each vehicle's table turned into place; the visible shares
@@ -146,7 +141,8 @@ def _sky_hidden(vehicles: Sequence[VehicleState], origin: np.ndarray, half_m: fl
     visible = np.ones((n, n), np.float32)
     for v in vehicles:
         table, corner = sky_hidden_table(v)
-        rot_t = _rot_t(v)
+        c, s = np.cos(v.yaw_rad), np.sin(v.yaw_rad)
+        rot_t = np.array([[c, s], [-s, c]])  # world (x, y) -> the vehicle's frame
         th, tw = table.shape
         world = (corner + np.array([[0, 0], [tw, 0], [tw, th], [0, th]]) * cell) @ rot_t
         world += (v.x_m, v.y_m)  # (4, 2) [m] the table's corners
