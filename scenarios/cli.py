@@ -46,9 +46,7 @@ def render(
         ..., "--out", help="output folder (resumes if it holds a partial render)"
     ),
     frames: int | None = typer.Option(
-        None,
-        help="render only the first N frames (a drive of N frames: its scenery, laid out "
-        "along its path, differs from the full drive's)",
+        None, help="render only the first N frames (the whole drive's first N, file for file)"
     ),
     face_px: int | None = typer.Option(None, help="cube-map face size [px]"),
     renderer: str = typer.Option(
@@ -193,9 +191,7 @@ def run(
         "direct", help="direct | can-only | features | a plug-in package.module:ClassName"
     ),
     frames: int | None = typer.Option(
-        None,
-        help="only the first N frames (a drive of N frames: its scenery, laid out along its "
-        "path, differs from the full drive's)",
+        None, help="only the first N frames (the whole drive's first N, file for file)"
     ),
     road_mask: str | None = typer.Option(
         None, help="'gt': give the estimator the true road mask (a diagnostic ceiling)"

@@ -393,16 +393,20 @@ def check_renderer(scenario: Scenario, renderer: str) -> None:
 
 def prepare_drive(
     scenario: Scenario,
-    max_frames: int | None = None,
     face_px: int | None = None,
     renderer: str = "plane",
 ) -> DriveRenderer:
-    """Simulate the scenario's traffic and set up its renderer."""
+    """Simulate the scenario's whole drive and set up its renderer.
+
+    The whole drive, also where only its first frames are rendered: the scenery is laid
+    out along the whole path, so that the first N frames of a drive are the same whatever
+    N is rendered.
+    """
     check_renderer(scenario, renderer)
     camera, mount = resolve_camera(scenario.camera)
     if mount.rear_axle_x_m is None:  # the ego car's geometry goes with the recording
         mount = replace(mount, rear_axle_x_m=EGO_REAR_AXLE_X_M)
-    n = scenario.n_frames if max_frames is None else min(scenario.n_frames, max_frames)
+    n = scenario.n_frames
     frames, road = simulate(
         scenario.env,
         scenario.env_config,
@@ -448,17 +452,21 @@ def render_drive(
     if manifest.get("complete") and manifest.get("frames") == n:  # nothing to simulate either
         _write_body_mask(out_dir)  # renders made before drives held one
         return DriveResult(out_dir, n, 0, manifest.get("render_ms_per_frame") or float("nan"))
-    drive = prepare_drive(scenario, max_frames, face_px, renderer)
+    drive = prepare_drive(scenario, face_px, renderer)
     io.write_yaml(sc_path, resolved)
     save_camera(out_dir / "camera.yaml", drive.camera, drive.mount)
+    shown = drive.frames[:n]
+    sent = drive.t_msg <= shown[-1].t_s + 1e-9  # the CAN messages up to the last frame
     io.write_text(
         out_dir / "can.csv",
         "t_s,speed_mps\n"
-        + "".join(f"{a:.4f},{b:.4f}\n" for a, b in zip(drive.t_msg, drive.v_msg, strict=True)),
+        + "".join(
+            f"{a:.4f},{b:.4f}\n" for a, b in zip(drive.t_msg[sent], drive.v_msg[sent], strict=True)
+        ),
     )
     io.write_text(
         out_dir / "timestamps.csv",
-        "frame,t_s\n" + "".join(f"{k},{f.t_s:.6f}\n" for k, f in enumerate(drive.frames)),
+        "frame,t_s\n" + "".join(f"{k},{f.t_s:.6f}\n" for k, f in enumerate(shown)),
     )
     todo = [k for k in range(n) if not (out_dir / "gt" / f"{frame_name(k)}.json").exists()]
     _check_render_settings(out_dir, drive.settings(), resuming=len(todo) < n)

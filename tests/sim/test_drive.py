@@ -165,6 +165,32 @@ def test_interrupted_and_resumed_render_is_byte_identical(drive_dir, tmp_path, m
         assert not differ, f"{folder}: {differ} differ from the uninterrupted render"
 
 
+def test_the_first_frames_of_a_drive_do_not_depend_on_how_many_are_rendered(tmp_path):
+    """A drive rendered with ``max_frames`` (``--frames``) is the whole drive's first
+    frames, file for file: the scenery lies along the whole path, and the last frame's
+    motion blur and CAN messages are the whole drive's."""
+    blurred = {"noise_std": 0, "exposure_s": 0.03, "jpeg_quality": None, "gain_drift": 0}
+    blurred["vignetting"] = 0
+    scenario = tiny(sensor=blurred, can={"speed_noise_mps": 0.1})
+    full, short = tmp_path / "full", tmp_path / "short"
+    render_drive(scenario, full, progress=False)
+    assert render_drive(scenario, short, max_frames=2, progress=False).n_frames == 2
+    for folder in ("frames", "ids", "range", "gt"):
+        names = sorted(p.name for p in (short / folder).iterdir())
+        assert len(names) == 2, folder
+        differ = [
+            n
+            for n in names
+            if (full / folder / n).read_bytes() != (short / folder / n).read_bytes()
+        ]
+        assert not differ, f"{folder}: {differ} differ from the whole drive's"
+    t_end = float((short / "timestamps.csv").read_text().splitlines()[-1].split(",")[1])
+    whole = [ln for ln in (full / "can.csv").read_text().splitlines()[1:]]
+    assert (short / "can.csv").read_text().splitlines()[1:] == [
+        ln for ln in whole if float(ln.split(",")[0]) <= t_end + 1e-4
+    ]
+
+
 def test_the_camera_file_records_the_sensor_vignetting(drive_dir, tmp_path):
     """The sensor's vignetting is the drive camera's photometric calibration: its camera
     file says it, and the frames are the unvignetted ones times `vignetting_gain`."""
