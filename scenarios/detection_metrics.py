@@ -359,7 +359,7 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
     "matched"}, "tracking": {"mota", "idf1", "hota", "id_switches", "hota_box",
     "deta_box", "assa_box"},
     "localization": {"median_error_m", "p90_error_m", "centre_median_error_m",
-    "centre_p90_error_m"}, "nan_reasons"}`` with
+    "centre_p90_error_m", "offset_median_error_m"}, "nan_reasons"}`` with
     plain Python numbers (JSON-ready). ``nan_reasons`` maps "section.metric" to
     why that metric is NaN.
     """
@@ -399,22 +399,28 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "no matched hypothesis"
         )
 
-    # box centres: matched hypotheses that have one, to the footprint's centre
-    centre_err = np.array(
-        [
-            float(np.linalg.norm(frames[k].hyp_centre_xy[c] - frames[k].gt[r].footprint_xy.mean(0)))
-            for k, r, c in matches
-            if np.all(np.isfinite(frames[k].hyp_centre_xy[c]))
-        ]
-    )
+    # box centres: matched hypotheses that have one, to the footprint's centre; and the
+    # box's offset from its point against the centre's offset from the nearest ground
+    # point (what the box adds to the point's error)
+    centre_err, offset_err = [], []
+    for k, r, c in matches:
+        f = frames[k]
+        if not np.all(np.isfinite(f.hyp_centre_xy[c])):
+            continue
+        centre = f.gt[r].footprint_xy.mean(0)
+        centre_err.append(float(np.linalg.norm(f.hyp_centre_xy[c] - centre)))
+        nearest = nearest_footprint_point(f.gt[r].footprint_xy, cfg.camera_xy)
+        offset = (f.hyp_centre_xy[c] - f.hyp_xy[c]) - (centre - nearest)
+        offset_err.append(float(np.linalg.norm(offset)))
+    centre_err, offset_err = np.array(centre_err), np.array(offset_err)
     if centre_err.size:
         centre_med = float(np.median(centre_err))
         centre_p90 = float(np.percentile(centre_err, 90))
+        offset_med = float(np.median(offset_err))
     else:
-        centre_med = centre_p90 = NAN
-        reasons["localization.centre_median_error_m"] = reasons[
-            "localization.centre_p90_error_m"
-        ] = "no matched hypothesis with a box"
+        centre_med = centre_p90 = offset_med = NAN
+        for key in ("centre_median_error_m", "centre_p90_error_m", "offset_median_error_m"):
+            reasons[f"localization.{key}"] = "no matched hypothesis with a box"
 
     mot = {"mota": NAN, "idf1": NAN, "num_switches": 0, "num_matches": 0}
     mot |= {"num_false_positives": hyp_count, "num_misses": 0}
@@ -471,6 +477,7 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
             "p90_error_m": p90_err,
             "centre_median_error_m": centre_med,
             "centre_p90_error_m": centre_p90,
+            "offset_median_error_m": offset_med,
         },
         "nan_reasons": reasons,
     }

@@ -34,7 +34,8 @@ SECTIONS = {
     "detection": {"recall", "precision", "gt_count", "matched"},
     "tracking": {"mota", "idf1", "hota", "id_switches", "hota_box", "deta_box", "assa_box"},
     "localization": {
-        "median_error_m", "p90_error_m", "centre_median_error_m", "centre_p90_error_m"
+        "median_error_m", "p90_error_m", "centre_median_error_m", "centre_p90_error_m",
+        "offset_median_error_m",
     },
 }  # fmt: skip
 
@@ -111,6 +112,7 @@ def test_perfect_hypotheses_score_one():
         "p90_error_m": 0.0,
         "centre_median_error_m": 0.0,
         "centre_p90_error_m": 0.0,
+        "offset_median_error_m": 0.0,
     }
     assert m["gate_m"] == 1.5 and m["nan_reasons"] == {}
 
@@ -127,9 +129,13 @@ def test_box_centre_error_of_matched_hypotheses_with_a_box():
     m = evaluate([f])
     assert m["detection"]["matched"] == 2 and m["counts"]["centre_pairs"] == 1
     assert m["localization"]["centre_median_error_m"] == pytest.approx(math.hypot(1.0, 0.5))
+    # the point 0.5 m short of the rear face's middle (8, 0), the box 3.5 m beyond the
+    # point where the centre is 2 m beyond that face point: the box adds (1.5, 0.5)
+    assert m["localization"]["offset_median_error_m"] == pytest.approx(math.hypot(1.5, 0.5))
     none = evaluate([EvalFrame([a], [(5, 7.5, 0.0)])])
     assert math.isnan(none["localization"]["centre_median_error_m"])
     assert "localization.centre_median_error_m" in none["nan_reasons"]
+    assert "localization.offset_median_error_m" in none["nan_reasons"]
     with pytest.raises(ValueError, match="1 box centres for 3 hypotheses"):
         EvalFrame([a], [(5, 7.5, 0.0), (6, 1.0, 1.0), (7, 2.0, 2.0)], centres=[(1.0, 1.0)])
 
