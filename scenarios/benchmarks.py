@@ -1,9 +1,10 @@
 """Speed benchmarks on rendered drives: `omnibench bench detect` and `bench estimate`.
 
-- `bench_detect`: detection + tracking. The drive (the first ``frames`` frames of the
-  dense freeway, `dense-freeway-omni-near`: 60 vehicles, cars alongside) is rendered
-  once into ``renders/bench/`` and reused. The surround analysis
-  runs with the ground-truth motion (so only detection and tracking are timed).
+- `bench_detect`: detection + tracking. The drive (by default every frame of the dense
+  exit, `dense-exit-omni-near`: the library's densest traffic around the car, 3.9
+  vehicles within 25 m a frame, up to 6) is rendered once into ``renders/bench/`` and
+  reused. The surround analysis runs with the ground-truth motion (so only detection and
+  tracking are timed).
 - `bench_estimate`: `DirectEstimator.step` on the frames of a library drive (default
   highway-omni-near, with its sensor effects), rendered once into the suites' render
   cache (``renders/cache/<render key>``, `scenarios.suite.render_key_for`) and reused.
@@ -30,24 +31,36 @@ from estimator.surround.analyzer import SurroundAnalyzer
 from scenarios.config import load_scenario
 from sim.drive import load_groundtruth, render_drive
 
-DETECT_BENCH_SCENARIO = "dense-freeway-omni-near"  # the drive `bench_detect` times
+DETECT_BENCH_SCENARIO = "dense-exit-omni-near"  # the drive `bench_detect` times
 
 
 def bench_detect(
     camera: str | dict[str, Any] = "omni-near",
-    n_frames: int = 30,
+    n_frames: int | None = None,
     cache_dir: Path = Path("renders/bench"),
+    scenario: str = DETECT_BENCH_SCENARIO,
 ) -> dict:
     """Median ms per frame of `SurroundAnalyzer.step` (compensation, motion hypotheses,
     plan view, blobs, tracker) over a rendered dense drive, its p90 and median process CPU
     time (one core: about the wall time), and how many vehicles it saw
-    (``vehicles_in_range``: vehicle-frames within the detection range, per frame)."""
+    (``vehicles_in_range``: vehicle-frames within the detection range, per frame).
 
-    dense = load_scenario(DETECT_BENCH_SCENARIO)
+    n_frames: frames after the first (None: the whole drive); scenario: a library name
+    or a scenario file.
+    """
+
+    dense = load_scenario(scenario)
+    if n_frames is None:
+        n_frames = dense.n_frames - 1
+    if not 1 <= n_frames < dense.n_frames:
+        raise ValueError(
+            f"{dense.name} has {dense.n_frames} frames; n_frames must be 1..{dense.n_frames - 1}, "
+            f"got {n_frames}"
+        )
     name = camera if isinstance(camera, str) else "inline"
     sc = dense.model_copy(
         update={
-            "name": f"bench-detect-{DETECT_BENCH_SCENARIO}-{name}",
+            "name": f"bench-detect-{dense.name}-{name}",
             "camera": camera,
             "duration_s": (n_frames + 1) / dense.fps,
         }
@@ -82,7 +95,7 @@ def bench_detect(
     ]
     return {
         "bench": "detect",
-        "scenario": DETECT_BENCH_SCENARIO,
+        "scenario": dense.name,
         "vehicles_in_range": float(np.mean(near)),
         **clock.summary(),
         "width": cam.width,

@@ -563,16 +563,21 @@ def bench_estimate(
 
 @bench_app.command("detect")
 def bench_detect_cmd(
-    frames: int = typer.Option(30, help="frames to time"),
+    frames: int | None = typer.Option(None, help="frames to time (default: the whole drive)"),
     camera: str = typer.Option("omni-near", help="camera preset"),
+    scenario: str | None = typer.Option(
+        None, help="the drive: a library name or a scenario file (default: the dense exit)"
+    ),
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
-    """Median and p90 ms per frame of detection + tracking on one core (the dense freeway
-    drive: 60 vehicles, cars alongside)."""
+    """Median and p90 ms per frame of detection + tracking on one core (by default the
+    dense exit: the library's densest traffic around the car)."""
     from scenarios.benchmarks import bench_detect
 
     _one_core()
-    res = bench_detect(camera=camera, n_frames=frames)
+    res = bench_detect(
+        camera=camera, n_frames=frames, **({"scenario": scenario} if scenario else {})
+    )
     console.print(
         f"detect+track ({camera}): {res['ms_per_frame']:.1f} ms/frame median, "
         f"{res['p90_ms_per_frame']:.1f} p90 (CPU {res['cpu_ms_per_frame']:.1f}) over "

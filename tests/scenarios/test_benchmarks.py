@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from scenarios.config import LIBRARY_DIR
@@ -55,3 +56,6 @@ def test_bench_detect_reports_the_median_and_p90(tmp_path):
     assert res["vehicles_in_range"] >= 2  # a dense drive, not an empty road
     assert 0 < res["ms_per_frame"] <= res["p90_ms_per_frame"]
     assert res["cpu_ms_per_frame"] > 0
+    assert res["scenario"] == "dense-exit-omni-near"
+    with pytest.raises(ValueError, match="dense-exit-omni-near has 225 frames"):
+        bench_detect(camera=camera, n_frames=225, cache_dir=tmp_path)
