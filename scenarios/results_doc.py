@@ -160,6 +160,8 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
             what = (b.get("bench") or path.stem) + (
                 f" ({name}{', shadows' if r.get('shadows') else ''}, {r.get('face_px')}-px faces)"
                 if name
+                else f" ({b['scenario']})"  # the drive it timed
+                if b.get("scenario")
                 else ""
             )
             median = r.get("ms_per_frame")

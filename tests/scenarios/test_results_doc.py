@@ -66,6 +66,12 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     assert "| 140 | 0.91 | – | 0.88 | – | – | – | – | 9 | 0.93 |" in page
     assert "1 jobs did not finish" in page and "boom" in page
     assert "| estimate | 12.5 | 14.0 | 80.00 | 12 | 40 |" in page
+    detect = tmp_path / "detect.json"
+    detect.write_text(
+        '{"bench": "detect", "scenario": "dense-exit-omni-near", "ms_per_frame": 20.0}'
+    )
+    page = results_markdown([run], [detect], "omnibench results run")
+    assert "| detect (dense-exit-omni-near) | 20.0 |" in page  # with the drive it timed
 
 
 def test_tuning_suite_is_said_to_be_not_held_out(tmp_path):
