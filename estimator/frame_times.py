@@ -1,4 +1,5 @@
-"""Wall-clock and CPU time of the frames a benchmark times (`omnibench bench ...`)."""
+"""Wall-clock and CPU time of the frames a benchmark times (`omnibench bench ...`), and
+of the stages of one frame."""
 
 from __future__ import annotations
 
@@ -33,3 +34,22 @@ class FrameTimes:
             "cpu_ms_per_frame": float(np.median(1000.0 * np.asarray(self.cpu_s))),
             "frames": len(ms),
         }
+
+
+class StageClock:
+    """Seconds spent per named stage of the last frame (`omnibench bench render`, `bench
+    detect`)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def start(self) -> None:
+        self.seconds = {}
+        self._t = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        """Charge the time since the last lap (or start) to stage."""
+        now = time.perf_counter()
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self._t
+        self._t = now

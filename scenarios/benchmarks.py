@@ -42,8 +42,10 @@ def bench_detect(
 ) -> dict:
     """Median ms per frame of `SurroundAnalyzer.step` (compensation, motion hypotheses,
     plan view, blobs, tracker) over a rendered dense drive, its p90 and median process CPU
-    time (one core: about the wall time), and how many vehicles it saw
-    (``vehicles_in_range``: vehicle-frames within the detection range, per frame).
+    time (one core: about the wall time), the median ms of each stage (``stages_ms``:
+    warps, score, blobs, refine, track; `SurroundAnalyzer.stage_seconds`) and how many
+    vehicles it saw (``vehicles_in_range``: vehicle-frames within the detection range, per
+    frame).
 
     n_frames: frames after the first (None: the whole drive); scenario: a library name
     or a scenario file.
@@ -73,7 +75,7 @@ def bench_detect(
     images = [read_png(out / "frames" / f"{k:06d}.png") for k in range(len(gt))]
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    clock = FrameTimes()
+    clock, stages = FrameTimes(), []
     try:
         for k, img in enumerate(images):
             m = gt[k]["motion_from_prev"]
@@ -84,6 +86,8 @@ def bench_detect(
                 k, gt[k]["t_s"], img, x, dt, gt[k]["ego"]["speed_mps"], gt[k]["ego"]["yaw_rate_rps"]
             )
             clock.stop(keep=k >= 2)
+            if k >= 2:
+                stages.append(sa.stage_seconds)
     finally:
         cv2.setNumThreads(threads)
     near = [
@@ -98,6 +102,9 @@ def bench_detect(
         "scenario": dense.name,
         "vehicles_in_range": float(np.mean(near)),
         **clock.summary(),
+        "stages_ms": {
+            n: 1000.0 * float(np.median([st.get(n, 0.0) for st in stages])) for n in stages[0]
+        },
         "width": cam.width,
         "height": cam.height,
         "camera": camera,

@@ -581,7 +581,9 @@ def bench_detect_cmd(
     console.print(
         f"detect+track ({camera}): {res['ms_per_frame']:.1f} ms/frame median, "
         f"{res['p90_ms_per_frame']:.1f} p90 (CPU {res['cpu_ms_per_frame']:.1f}) over "
-        f"{res['frames']} frames on one core"
+        f"{res['frames']} frames on one core; by stage (median): "
+        + ", ".join(f"{k} {v:.1f}" for k, v in res["stages_ms"].items())
+        + " ms"
     )
     if as_json:
         print(json.dumps(res))

@@ -25,7 +25,7 @@ def bench_render(
     Returns frames_per_s (at the median), ms_per_frame (median), ms_p90, the median CPU
     time of the process per frame ``cpu_ms_per_frame`` (all its threads: with the
     stages running side by side, the work a frame takes whatever the cores), and per
-    stage (`sim.frame_renderer.StageClock`) its median ms in ``stages_ms`` (the motion
+    stage (`estimator.frame_times.StageClock`) its median ms in ``stages_ms`` (the motion
     and sensor stages of a frame run beside the rendering of the next).
     """
     total = n_frames + warmup

@@ -38,6 +38,7 @@ from estimator import fileio as io
 from estimator.camera.files import BODY_MASK_FILE, resolve_camera, save_camera
 from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
+from estimator.frame_times import StageClock
 from estimator.progress import track
 from sim.camera_motion import (
     CameraPose,
@@ -52,7 +53,6 @@ from sim.frame_renderer import (
     CubeFrameRenderer,
     FrameImages,
     PlaneFrameRenderer,
-    StageClock,
     default_face_px,
     imaged_mask,
     object_face_px,

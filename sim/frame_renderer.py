@@ -16,7 +16,6 @@ Both draw the pixels of the car body under an omni mirror once, at the first fra
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -26,6 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from estimator.camera.models import CameraModel
+from estimator.frame_times import StageClock
 from sim.coded_scene import (
     AMBIENT,
     SUN_INTENSITY,
@@ -51,24 +51,6 @@ PLANE_MESHES = ("road", "markings", "ground")  # `sim.scene.build_static_scene` 
 PLANE_K = {"road": 0.266, "grass": 0.451, "markings": 0.826}
 OBJECT_OVERSAMPLING = 1.0  # [-] face texels per camera pixel for what stands on the road, 0.5..2
 BODY_MARGIN_PX = 3  # [px] the body's pixels kept from the first frame are this far inside it
-
-
-class StageClock:
-    """Seconds spent per named stage of the last frame (`omnibench bench render`)."""
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-        self._t = time.perf_counter()
-
-    def start(self) -> None:
-        self.seconds = {}
-        self._t = time.perf_counter()
-
-    def lap(self, stage: str) -> None:
-        """Charge the time since the last lap (or start) to stage."""
-        now = time.perf_counter()
-        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self._t
-        self._t = now
 
 
 @dataclass

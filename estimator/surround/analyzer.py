@@ -203,12 +203,19 @@ class SurroundAnalyzer:
             swept_s=[self._swept_s(d) for d in cands],
         )
         det.detections = self._classify(cands)
+        self.detector.clock.lap("track")
         tracks = [
             t
             for t in self.tracker.tracks
             if t.id in self._vehicle and t.misses <= self.cfg.max_coast_frames
         ]
         return SurroundFrame(frame, t_s, det, tracks)
+
+    @property
+    def stage_seconds(self) -> dict[str, float]:
+        """[s] the last step's time by stage: the detector's (`VehicleDetector.clock`:
+        warps, score, blobs, refine), then the tracker's ("track")."""
+        return dict(self.detector.clock.seconds)
 
     def _classify(self, cands: list) -> list:
         """Update the hit rates and vehicle flags; the candidates of vehicle tracks."""

@@ -101,6 +101,7 @@ from estimator.camera.models import CameraModel
 from estimator.camera.mount import CameraMount
 from estimator.egomotion.compensation import FrameCompensator
 from estimator.egomotion.homography import homography_parts
+from estimator.frame_times import StageClock
 from estimator.geometry import skew
 from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
 from estimator.surround.hidden import hidden_box
@@ -385,6 +386,8 @@ class VehicleDetector:
         h = mount.height_m
         self._clearance_scale = (h - min(cfg.vehicle_clearance_m, 0.5 * h)) / h
         self._box_cfg = BoxFitConfig(size_m=cfg.hidden_box_m)
+        # the last `detect`'s seconds by stage: warps, score, blobs, refine
+        self.clock = StageClock()
 
     @property
     def analysed_area(self) -> np.ndarray:
@@ -493,6 +496,7 @@ class VehicleDetector:
         cfg = self.cfg
         s = cfg.scale
         K0, n = self.comp.K0, self._n
+        self.clock.start()
         # 1. warp the earlier frame with every hypothesis
         warped: dict[float, np.ndarray] = {}
         Hs: dict[float, tuple[np.ndarray, np.ndarray]] = {}
@@ -511,6 +515,7 @@ class VehicleDetector:
             if key:
                 ok &= self.comp.sampled_in_view(mx, my, s)
         a = np.asarray(current, np.float32)
+        self.clock.lap("warps")
         if paper:
             return self._detect_paper(a, warped[1.0], ok)
         # the road's map from the current frame to the one a step back (the road veto)
@@ -550,6 +555,7 @@ class VehicleDetector:
             up = cv2.resize(sc, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_LINEAR)
             moving |= (up > cfg.score_threshold) & ok
             score = np.maximum(score, up)
+        self.clock.lap("score")
         # 3. plan view, closing along the motion, blobs, obstacle map
         plan, cands = self._candidates(moving, score, current_full, earlier_full, Hs, middle=middle)
         # 4. full-resolution pictures (display)
@@ -609,6 +615,7 @@ class VehicleDetector:
         plan = cv2.morphologyEx(plan, cv2.MORPH_CLOSE, self._close_kernel)
         cands = self._blobs(plan, tall)
         self._set_scores(cands, score)
+        self.clock.lap("blobs")
         if self.cfg.refine and current_full is not None and earlier_full is not None:
             near = cv2.dilate(moving.astype(np.uint8), np.ones((3, 3), np.uint8))
             cur = np.asarray(current_full, np.float32)
@@ -616,7 +623,9 @@ class VehicleDetector:
             for c in cands:
                 if not c.hidden:
                     self._refine(c, cur, early, maps, near, given=given, middle=middle)
-        return plan, self._in_range_merged(cands)
+        cands = self._in_range_merged(cands)
+        self.clock.lap("refine")
+        return plan, cands
 
     def _detect_paper(self, a: np.ndarray, w1: np.ndarray, ok: np.ndarray) -> DetectionFrame:
         """Section 5 as the paper writes it: the road-compensated difference (eq. 22)

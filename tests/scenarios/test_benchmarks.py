@@ -57,5 +57,8 @@ def test_bench_detect_reports_the_median_and_p90(tmp_path):
     assert 0 < res["ms_per_frame"] <= res["p90_ms_per_frame"]
     assert res["cpu_ms_per_frame"] > 0
     assert res["scenario"] == "dense-exit-omni-near"
+    stages = res["stages_ms"]  # where a frame's time goes
+    assert list(stages) == ["warps", "score", "blobs", "refine", "track"]
+    assert all(v >= 0 for v in stages.values()) and stages["score"] > 0
     with pytest.raises(ValueError, match="dense-exit-omni-near has 225 frames"):
         bench_detect(camera=camera, n_frames=225, cache_dir=tmp_path)
