@@ -60,15 +60,10 @@ def bench_detect(
             f"got {n_frames}"
         )
     name = camera if isinstance(camera, str) else "inline"
-    sc = dense.model_copy(
-        update={
-            "name": f"bench-detect-{dense.name}-{name}",
-            "camera": camera,
-            "duration_s": (n_frames + 1) / dense.fps,
-        }
-    )
+    # the drive's own first frames (its scenery laid out for the whole drive)
+    sc = dense.model_copy(update={"name": f"bench-detect-{dense.name}-{name}", "camera": camera})
     out = Path(cache_dir) / sc.name
-    render_drive(sc, out, progress=True)
+    render_drive(sc, out, progress=True, max_frames=n_frames + 1)
     gt = load_groundtruth(out)
     cam, mount = load_camera(out / "camera.yaml")
     sa = SurroundAnalyzer(with_folder_body_mask(cam, out), mount)  # as `omnibench run`
