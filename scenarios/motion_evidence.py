@@ -11,6 +11,13 @@ error looks static to every test that compares two frames; a vehicle with too fe
 pixels is beyond them all. The bound ignores texture (a flat body shows its motion only at
 its edges: `evident_edge_px` counts the evident pixels on an edge of the frame).
 
+A pixel without motion evidence may still **stand** above the road: its earlier pixel
+lies on the static curve but away from the road's own prediction (`pixel_road_px` >=
+EVIDENT_PX). A vehicle the ego car overtakes slowly looks like that over most of its
+body: a test for structure standing on the road (plane parallax, whatever moves) could see
+it where a motion test cannot; `standing_px` counts such pixels, and the summary the
+vehicle-frames with enough evident or standing pixels (the bound of "motion or height").
+
     python -m scenarios.motion_evidence DRIVE_DIR [--baseline 2] [--every 3]
 """
 
@@ -81,13 +88,35 @@ def pixel_evidence_px(
     return best
 
 
+def pixel_road_px(
+    camera: CameraModel,
+    T_world_cam: np.ndarray,
+    T_world_cam_early: np.ndarray,
+    P_world: np.ndarray,
+    P_world_early: np.ndarray,
+) -> np.ndarray:
+    """(N,) distance [px] of the earlier pixel of scene points seen at P_world (N, 3), which
+    were at P_world_early (N, 3), from where the road point on the same ray would have been
+    (the road hypothesis, lambda = 1). NaN for rays that do not meet the road."""
+    centre = T_world_cam[:3, 3]
+    ray = P_world - centre
+    w_true = camera.project(_camera_points(P_world_early, T_world_cam_early))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -centre[2] / ray[:, 2]
+    road = camera.project(_camera_points(centre + s[:, None] * ray, T_world_cam_early))
+    d = np.hypot(*(w_true - road).T)
+    d[~(ray[:, 2] < 0) | ~np.isfinite(d)] = np.nan
+    return d
+
+
 def drive_evidence(
     drive_dir: Path, baseline: int = 2, every: int = 3, max_range_m: float = 25.0
 ) -> list[dict]:
     """Per evaluated vehicle-frame (`scenarios.runner.gt_evaluation_set`; every ``every``th
     frame from ``baseline`` on): its motion class, visible pixels, visible pixels in a
     detector's analysed area that meet the road's ray range, and of those the evident
-    ones (`pixel_evidence_px` >= EVIDENT_PX) and the evident ones on an edge."""
+    ones (`pixel_evidence_px` >= EVIDENT_PX), the evident ones on an edge, and the standing
+    ones (not evident, `pixel_road_px` >= EVIDENT_PX)."""
     drive_dir = Path(drive_dir)
     if baseline < 1 or every < 1:
         raise ValueError(f"baseline and every must be >= 1, got {baseline}, {every}")
@@ -113,7 +142,7 @@ def drive_evidence(
             rec = {"frame": k, "id": gv.id, "motion": gv.motion, "visible_px": int(seen.sum())}
             r, c = np.nonzero(seen & area)
             rec["analysed_px"] = len(r)
-            rec["evident_px"] = rec["evident_edge_px"] = 0
+            rec["evident_px"] = rec["evident_edge_px"] = rec["standing_px"] = 0
             if len(r) and gv.id in then:
                 v, ve = now[gv.id], then[gv.id]
                 P = T[:3, 3] + (rays[r, c] * rng_m[r, c, None]) @ T[:3, :3].T
@@ -122,25 +151,31 @@ def drive_evidence(
                 ]  # R^T (p - o)
                 P_e = np.c_[body @ rot_z(ve["yaw_rad"])[:2, :2].T + [ve["x_m"], ve["y_m"]], P[:, 2]]
                 ev = pixel_evidence_px(camera, T, T_e, P, P_e, Z_MAX_PER_H * T[2, 3]) >= EVIDENT_PX
+                stands = ~ev & (pixel_road_px(camera, T, T_e, P, P_e) >= EVIDENT_PX)
                 rec["evident_px"] = int(ev.sum())
                 rec["evident_edge_px"] = int((ev & (g2[r, c] >= EDGE_GREY_PER_PX**2)).sum())
+                rec["standing_px"] = int(stands.sum())
             out.append(rec)
     return out
 
 
 def summary(records: list[dict], min_px: tuple[int, ...] = (20, 80)) -> dict:
     """Per motion class (and "all"): vehicle-frames, and the share with at least each
-    min_px evident pixels and evident edge pixels."""
+    min_px evident pixels, evident edge pixels, and evident or standing pixels."""
     classes = ["all"] + sorted({r["motion"] for r in records})
     out = {}
     for cls in classes:
         sel = [r for r in records if cls == "all" or r["motion"] == cls]
         ev = np.array([r["evident_px"] for r in sel])
         edge = np.array([r["evident_edge_px"] for r in sel])
+        either = ev + np.array([r["standing_px"] for r in sel], dtype=ev.dtype)
         row = {"vehicle_frames": len(sel)}
         for m in min_px:
             row[f"evident_px>={m}"] = float(np.mean(ev >= m)) if len(sel) else float("nan")
             row[f"evident_edge_px>={m}"] = float(np.mean(edge >= m)) if len(sel) else float("nan")
+            row[f"evident_or_standing_px>={m}"] = (
+                float(np.mean(either >= m)) if len(sel) else float("nan")
+            )
         out[cls] = row
     return out
 

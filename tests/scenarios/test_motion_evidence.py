@@ -6,7 +6,7 @@ import pytest
 
 from estimator.camera.files import load_camera
 from scenarios.config import load_scenario
-from scenarios.motion_evidence import drive_evidence, pixel_evidence_px, summary
+from scenarios.motion_evidence import drive_evidence, pixel_evidence_px, pixel_road_px, summary
 from sim.camera_motion import T_world_car, camera_pose
 from sim.drive import render_drive
 
@@ -49,6 +49,22 @@ def test_a_comoving_point_is_as_far_as_the_nearest_static_height(pair):
     assert np.median(ev) > 2.0  # 3 m of travel: most such points show it
 
 
+def test_a_static_point_above_the_road_stands_and_a_road_point_does_not(pair):
+    """A static point 0.1-1.2 m up: no motion evidence, but its earlier pixel is away from
+    the road's prediction on its ray (as far as a brute-force projection says); a point on
+    the road: at the road's prediction."""
+    camera, T, T_e, P = pair
+    d = pixel_road_px(camera, T, T_e, P, P)
+    c, ray = T[:3, 3], P - T[:3, 3]
+    X = c + ((0.0 - c[2]) / ray[:, 2])[:, None] * ray  # the road point on each ray
+    w_road = camera.project((X - T_e[:3, 3]) @ T_e[:3, :3])
+    w_true = camera.project((P - T_e[:3, 3]) @ T_e[:3, :3])
+    assert np.allclose(d, np.hypot(*(w_true - w_road).T))
+    assert np.median(d) > 2.0  # 3 m of travel: most such points stand out
+    road = P * [1.0, 1.0, 0.0]
+    assert np.nanmax(pixel_road_px(camera, T, T_e, road, road)) < 1e-6
+
+
 def test_a_ray_above_the_camera_has_none(pair):
     camera, T, T_e, _ = pair
     P = np.array([[10.0, 0.0, T[2, 3] + 0.5]])
@@ -64,8 +80,10 @@ def test_a_rendered_dense_drive(tmp_path):
     assert len(recs) >= 4 and {r["frame"] for r in recs} <= {2, 3, 4, 5}
     for r in recs:
         assert r["evident_edge_px"] <= r["evident_px"] <= r["analysed_px"] <= r["visible_px"]
+        assert r["evident_px"] + r["standing_px"] <= r["analysed_px"]
     s = summary(recs)
     assert s["all"]["vehicle_frames"] == len(recs)
     assert s["all"]["evident_px>=20"] > 0.5
+    assert s["all"]["evident_or_standing_px>=20"] >= s["all"]["evident_px>=20"]
     with pytest.raises(ValueError, match="baseline"):
         drive_evidence(tmp_path, baseline=0)
