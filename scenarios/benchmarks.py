@@ -47,16 +47,16 @@ def bench_detect(
     vehicles it saw (``vehicles_in_range``: vehicle-frames within the detection range, per
     frame).
 
-    n_frames: frames after the first (None: the whole drive); scenario: a library name
-    or a scenario file.
+    n_frames: frames after the first (None: the whole drive; the first of them warms up,
+    so n_frames - 1 are timed); scenario: a library name or a scenario file.
     """
 
     dense = load_scenario(scenario)
     if n_frames is None:
         n_frames = dense.n_frames - 1
-    if not 1 <= n_frames < dense.n_frames:
+    if not 2 <= n_frames < dense.n_frames:
         raise ValueError(
-            f"{dense.name} has {dense.n_frames} frames; n_frames must be 1..{dense.n_frames - 1}, "
+            f"{dense.name} has {dense.n_frames} frames; n_frames must be 2..{dense.n_frames - 1}, "
             f"got {n_frames}"
         )
     name = camera if isinstance(camera, str) else "inline"

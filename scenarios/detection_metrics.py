@@ -380,15 +380,17 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
     recall = ratio(matched, gt_count, "detection.recall", "no ground-truth vehicle")
     precision = ratio(matched, hyp_count, "detection.precision", "no hypothesis")
 
+    # each matched vehicle's footprint point nearest the camera (N, 2), for both errors below
+    nearest = np.array(
+        [
+            nearest_footprint_point(frames[k].gt[r].footprint_xy, cfg.camera_xy)
+            for k, r, _ in matches
+        ]
+    ).reshape(-1, 2)
     errors = np.array(
         [
-            float(
-                np.linalg.norm(
-                    frames[k].hyp_xy[c]
-                    - nearest_footprint_point(frames[k].gt[r].footprint_xy, cfg.camera_xy)
-                )
-            )
-            for k, r, c in matches
+            float(np.linalg.norm(frames[k].hyp_xy[c] - p))
+            for (k, _, c), p in zip(matches, nearest, strict=True)
         ]
     )
     if errors.size:
@@ -403,14 +405,13 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
     # box's offset from its point against the centre's offset from the nearest ground
     # point (what the box adds to the point's error)
     centre_err, offset_err = [], []
-    for k, r, c in matches:
+    for (k, r, c), p in zip(matches, nearest, strict=True):
         f = frames[k]
         if not np.all(np.isfinite(f.hyp_centre_xy[c])):
             continue
         centre = f.gt[r].footprint_xy.mean(0)
         centre_err.append(float(np.linalg.norm(f.hyp_centre_xy[c] - centre)))
-        nearest = nearest_footprint_point(f.gt[r].footprint_xy, cfg.camera_xy)
-        offset = (f.hyp_centre_xy[c] - f.hyp_xy[c]) - (centre - nearest)
+        offset = (f.hyp_centre_xy[c] - f.hyp_xy[c]) - (centre - p)
         offset_err.append(float(np.linalg.norm(offset)))
     centre_err, offset_err = np.array(centre_err), np.array(offset_err)
     if centre_err.size:

@@ -62,3 +62,5 @@ def test_bench_detect_reports_the_median_and_p90(tmp_path):
     assert all(v >= 0 for v in stages.values()) and stages["score"] > 0
     with pytest.raises(ValueError, match="dense-exit-omni-near has 225 frames"):
         bench_detect(camera=camera, n_frames=225, cache_dir=tmp_path)
+    with pytest.raises(ValueError, match="n_frames must be 2..224, got 1"):
+        bench_detect(camera=camera, n_frames=1, cache_dir=tmp_path)  # nothing left to time

@@ -87,3 +87,16 @@ def test_a_rendered_dense_drive(tmp_path):
     assert s["all"]["evident_or_standing_px>=20"] >= s["all"]["evident_px>=20"]
     with pytest.raises(ValueError, match="baseline"):
         drive_evidence(tmp_path, baseline=0)
+
+
+def test_the_summary_counts_evident_and_standing_pixels_together():
+    """A vehicle-frame with 10 evident and 15 standing pixels has 20 of either, not 20
+    evident ones; one with 25 evident pixels has both."""
+    recs = [
+        {"motion": "overtaken", "evident_px": 10, "evident_edge_px": 5, "standing_px": 15},
+        {"motion": "overtaken", "evident_px": 25, "evident_edge_px": 0, "standing_px": 0},
+    ]
+    row = summary(recs, min_px=(20,))["overtaken"]
+    assert row["vehicle_frames"] == 2
+    assert row["evident_px>=20"] == 0.5 and row["evident_edge_px>=20"] == 0.0
+    assert row["evident_or_standing_px>=20"] == 1.0
