@@ -28,6 +28,7 @@ from estimator.egomotion.bench import time_steps
 from estimator.fileio import read_png
 from estimator.frame_times import FrameTimes
 from estimator.surround.analyzer import SurroundAnalyzer
+from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS, DetectorConfig
 from scenarios.config import load_scenario
 from sim.drive import load_groundtruth, render_drive
 
@@ -39,6 +40,7 @@ def bench_detect(
     n_frames: int | None = None,
     cache_dir: Path = Path("renders/bench"),
     scenario: str = DETECT_BENCH_SCENARIO,
+    detector: str = DEFAULT_DETECTOR,
 ) -> dict:
     """Median ms per frame of `SurroundAnalyzer.step` (compensation, motion hypotheses,
     plan view, blobs, tracker) over a rendered dense drive, its p90 and median process CPU
@@ -48,8 +50,11 @@ def bench_detect(
     frame).
 
     n_frames: frames after the first (None: the whole drive; the first of them warms up,
-    so n_frames - 1 are timed); scenario: a library name or a scenario file.
+    so n_frames - 1 are timed); scenario: a library name or a scenario file; detector: a
+    built-in method (`DetectorConfig.method`).
     """
+    if detector not in DETECTOR_METHODS:
+        raise ValueError(f"detector {detector!r}: choose one of {', '.join(DETECTOR_METHODS)}")
 
     dense = load_scenario(scenario)
     if n_frames is None:
@@ -66,7 +71,8 @@ def bench_detect(
     render_drive(sc, out, progress=True, max_frames=n_frames + 1)
     gt = load_groundtruth(out)
     cam, mount = load_camera(out / "camera.yaml")
-    sa = SurroundAnalyzer(with_folder_body_mask(cam, out), mount)  # as `omnibench run`
+    # as `omnibench run`
+    sa = SurroundAnalyzer(with_folder_body_mask(cam, out), mount, DetectorConfig(method=detector))
     images = [read_png(out / "frames" / f"{k:06d}.png") for k in range(len(gt))]
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
@@ -95,6 +101,7 @@ def bench_detect(
     return {
         "bench": "detect",
         "scenario": dense.name,
+        "detector": detector,
         "vehicles_in_range": float(np.mean(near)),
         **clock.summary(),
         "stages_ms": {

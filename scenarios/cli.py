@@ -294,6 +294,38 @@ def evaluate(
     console.print(f"-> {out}/metrics.json, {out}/report.html")
 
 
+@app.command("train-pixels")
+def train_pixels_cmd(
+    drives: list[Path] = typer.Argument(None, help="rendered drive folders (or --suite)"),
+    out: Path = typer.Option(..., "--out", help="model file to write (.npz)"),
+    suite: str | None = typer.Option(
+        None, help="fit to this suite's drives (e.g. surround-train), rendered where missing"
+    ),
+    cache: Path = typer.Option(Path("renders/cache"), help="the suite's render cache"),
+    every: int = typer.Option(4, help="sample one frame of this many"),
+    progress: bool = typer.Option(True, help="show progress bars"),
+) -> None:
+    """Fit the learned detector's pixel classifier to rendered drives' id images."""
+    from scenarios.suite import SuiteError
+    from scenarios.train_pixels import TrainConfig, check_drive, suite_drives, train
+    from sim.drive import DriveError
+
+    try:
+        cfg = TrainConfig(every=every)
+        if bool(drives) == bool(suite):
+            raise ValueError("give either drive folders or --suite")
+        for d in drives or []:
+            check_drive(d)
+        dirs = suite_drives(suite, cache, progress) if suite else list(drives)
+        model = train(dirs, out, cfg, progress, note=f"suite {suite}" if suite else "")
+    except (ValueError, SuiteError, DriveError) as e:
+        _fail(str(e))
+    console.print(
+        f"{len(dirs)} drive(s), {model.meta['n_samples']} pixels, loss "
+        f"{model.meta['loss']:.4f} -> {out}"
+    )
+
+
 @app.command()
 def export(
     drive: Path = typer.Argument(..., help="a rendered drive folder (omnibench render, run)"),
@@ -568,18 +600,27 @@ def bench_detect_cmd(
     scenario: str | None = typer.Option(
         None, help="the drive: a library name or a scenario file (default: the dense exit)"
     ),
+    detector: str = typer.Option(
+        "hypotheses", help="built-in surround detector: hypotheses | learned | paper"
+    ),
     as_json: bool = typer.Option(False, "--json", help="print a JSON line last"),
 ) -> None:
     """Median and p90 ms per frame of detection + tracking on one core (by default the
     dense exit: the library's densest traffic around the car)."""
+    from estimator.surround.detection import DETECTOR_METHODS
     from scenarios.benchmarks import bench_detect
 
+    if detector not in DETECTOR_METHODS:
+        _fail(f"--detector {detector!r}: choose one of {', '.join(DETECTOR_METHODS)}")
     _one_core()
     res = bench_detect(
-        camera=camera, n_frames=frames, **({"scenario": scenario} if scenario else {})
+        camera=camera,
+        n_frames=frames,
+        detector=detector,
+        **({"scenario": scenario} if scenario else {}),
     )
     console.print(
-        f"detect+track ({camera}): {res['ms_per_frame']:.1f} ms/frame median, "
+        f"detect+track ({camera}, {detector}): {res['ms_per_frame']:.1f} ms/frame median, "
         f"{res['p90_ms_per_frame']:.1f} p90 (CPU {res['cpu_ms_per_frame']:.1f}) over "
         f"{res['frames']} frames on one core; by stage (median): "
         + ", ".join(f"{k} {v:.1f}" for k, v in res["stages_ms"].items())

@@ -5,7 +5,7 @@ value)::
 
     name: paper                       # default: the file's stem
     description: "..."
-    role: tuning                      # tuning | check | regression (docs/SUITES.md)
+    role: tuning                      # tuning | check | regression | training (docs/SUITES.md)
     scenarios: [highway-omni-near, intersection-*, ../my/drive.yaml]
     cameras: [omni-near, {preset: omni-far, width: 480, height: 480}]
     estimators: [direct, can-only]    # default [direct]
@@ -121,6 +121,7 @@ ROLE_MEANING = {
     "tuning": "tuning suite: settings were chosen on these drives, so its figures are not held out",
     "check": "check suite: rendered and measured only after the settings were chosen",
     "regression": "regression suite: its figures guard against changes; they are not held out",
+    "training": "training suite: a fitted model learned from it; its figures are not held out",
 }
 
 
@@ -147,12 +148,13 @@ class Threshold(_Strict):
 class SuiteSpec(_Strict):
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9._-]+$")
     description: str = ""
-    role: Literal["tuning", "check", "regression"] | None = None  # keys of ROLE_MEANING
+    role: Literal["tuning", "check", "regression", "training"] | None = None  # keys of ROLE_MEANING
     scenarios: list[str] = Field(min_length=1)
     cameras: list[str | dict[str, Any]] | None = Field(None, min_length=1)
     estimators: list[str] = Field(default_factory=lambda: ["direct"], min_length=1)
     # surround detectors (`estimator.surround.detection.DETECTOR_METHODS`): "hypotheses"
-    # (the default) and "paper" (section 5 as written, a baseline)
+    # (the default), "learned" (a fitted pixel classifier) and "paper" (section 5 as
+    # written, a baseline)
     detectors: list[str] = Field(default_factory=lambda: [DEFAULT_DETECTOR], min_length=1)
     seeds: list[int] | None = Field(None, min_length=1)
     overrides: dict[str, Any] = Field(default_factory=dict)

@@ -106,10 +106,17 @@ from estimator.geometry import skew
 from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
 from estimator.surround.hidden import hidden_box
 from estimator.surround.outline import lower_outline, nearest_on_outline
+from estimator.surround.pixel_classifier import (
+    BUILTIN_MODEL,
+    PixelClassifier,
+    gather,
+    level_features,
+    pixel_features,
+)
 from estimator.surround.planview import PlanView, pixel_road_xy
 
 DEFAULT_DETECTOR = "hypotheses"  # `DetectorConfig.method` by default
-DETECTOR_METHODS = (DEFAULT_DETECTOR, "paper")  # `DetectorConfig.method`
+DETECTOR_METHODS = (DEFAULT_DETECTOR, "learned", "paper")  # `DetectorConfig.method`
 
 
 @dataclass(frozen=True)
@@ -119,7 +126,9 @@ class DetectorConfig:
     "px" are pixels of the full-resolution image unless stated otherwise.
     """
 
-    # "hypotheses": the motion-hypothesis test below (the default); "paper": the paper's
+    # "hypotheses": the motion-hypothesis test below (the default); "learned": the same
+    # evidence decided per pixel by a fitted classifier (`estimator.surround.pixel_classifier`)
+    # instead of the score's threshold; "paper": the paper's
     # section 5 as written, eq. 22 thresholded, plan view, 1 x N closing, blobs, nearest
     # point (no height test, no refinement, no hidden-ground handling), a baseline
     method: str = DEFAULT_DETECTOR
@@ -142,6 +151,11 @@ class DetectorConfig:
     energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
     score_threshold: float = 0.5  # [-] m above which a pixel is independently moving
+    # "learned": the classifier's file ("" the built-in one), p(vehicle) above which a pixel
+    # is marked, and the neighbourhood whose score it sees [px, working scale]
+    pixel_model: str = ""
+    pixel_threshold: float = 0.7  # [-], 0..1
+    context_px: int = 7  # [px], odd
     border_margin_px: int = 12  # [px] margin inside the field of view's outer rim left out
     # margin along the inner edge (the car-body mask): at the body cone's edge 1 px is
     # ~0.25 m of road: a wide margin there hides the ground point of every vehicle nearby
@@ -210,6 +224,10 @@ class DetectorConfig:
             raise ValueError(
                 "DetectorConfig: static_lambdas must contain 1.0 (the road) and "
                 "moving_lambdas 0.0 (fixed to the car)"
+            )
+        if not 0.0 < self.pixel_threshold < 1.0:
+            raise ValueError(
+                f"DetectorConfig.pixel_threshold must be in (0, 1), got {self.pixel_threshold}"
             )
         if min(self.static_lambdas) < 1.0 or max(self.moving_lambdas) >= 1.0:
             raise ValueError("DetectorConfig: static lambdas are >= 1, moving ones < 1")
@@ -388,6 +406,22 @@ class VehicleDetector:
         self._box_cfg = BoxFitConfig(size_m=cfg.hidden_box_m)
         # the last `detect`'s seconds by stage: warps, score, blobs, refine
         self.clock = StageClock()
+        # "learned": the pixel classifier and each working-scale pixel's log(1 + road range)
+        self.classifier = (
+            PixelClassifier.load(cfg.pixel_model or BUILTIN_MODEL)
+            if cfg.method == "learned"
+            else None
+        )
+        rng_s = cv2.resize(
+            np.where(np.isfinite(self._road_rng), self._road_rng, 1e3).astype(np.float32),
+            self.road_s.shape[::-1],
+            interpolation=cv2.INTER_AREA,
+        )
+        self._log_range_s = np.log1p(np.minimum(rng_s, 1e3))
+        # the last frame's (features (N, F) of its analysed pixels, in row-major order, and
+        # those pixels (h, w) bool) when kept (fitting the classifier)
+        self.keep_features = False
+        self.last_features: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def analysed_area(self) -> np.ndarray:
@@ -530,14 +564,19 @@ class VehicleDetector:
         if vehicle_mask is not None:
             return self._detect_given(a, vehicle_mask, ok, current_full, earlier_full, Hs)
         score = self._score(a, warped, ok, K, cfg.energy_k, sigma)
+        learned = cfg.method == "learned"
+        features = learned or self.keep_features
+        fine_score = score
         moving = (score > cfg.score_threshold) & ok
         # ego (nearly) stopped: no static hypothesis explains the pixel (eq. 22's test)
         disp_m = sum(float(np.linalg.norm(np.asarray(x, float)[:3])) * dt for x, dt in steps)
+        still = np.zeros_like(ok)
         if disp_m < cfg.still_displacement_m:
             r = self._static_residual(a, warped, ok, K, cfg.energy_k, sigma)
-            moving |= (r > cfg.still_threshold) & ok
+            still = (r > cfg.still_threshold) & ok
+            moving |= still
             score = np.maximum(score, r * (cfg.score_threshold / cfg.still_threshold))
-        if cfg.coarse_level:
+        if cfg.coarse_level or features:
             ac = cv2.pyrDown(a)
             okc = (
                 cv2.erode(
@@ -553,8 +592,30 @@ class VehicleDetector:
             wc = {lam: cv2.pyrDown(w) for lam, w in warped.items()}
             sc = self._score(ac, wc, okc, max(3.0, K / 2), cfg.energy_k, sigma / 2)
             up = cv2.resize(sc, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_LINEAR)
-            moving |= (up > cfg.score_threshold) & ok
-            score = np.maximum(score, up)
+            if cfg.coarse_level:
+                moving |= (up > cfg.score_threshold) & ok
+                score = np.maximum(score, up)
+        if features:
+            planes = pixel_features(
+                level_features(a, warped, ok, K, cfg.energy_k, sigma),
+                [
+                    cv2.resize(f, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_LINEAR)
+                    for f in level_features(ac, wc, okc, max(3.0, K / 2), cfg.energy_k, sigma / 2)
+                ],
+                fine_score,
+                up,
+                self._log_range_s,
+                cfg.context_px,
+            )
+            index = np.flatnonzero(ok)
+            X = gather(planes, index)  # (N, F): the analysed pixels' features
+            self.last_features = (X, ok)
+        if learned:
+            # p > pixel_threshold, as log-odds
+            cut = math.log(cfg.pixel_threshold / (1.0 - cfg.pixel_threshold))
+            marked = np.zeros(ok.size, bool)
+            marked[index] = self.classifier.logit(X) > cut
+            moving = marked.reshape(ok.shape) | still
         self.clock.lap("score")
         # 3. plan view, closing along the motion, blobs, obstacle map
         plan, cands = self._candidates(moving, score, current_full, earlier_full, Hs, middle=middle)

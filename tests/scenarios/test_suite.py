@@ -43,10 +43,11 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("validation-rect", 8, 8),
         ("check-rect", 8, 4),
         ("check-omni", 20, 10),
-        ("surround-tune", 20, 10),
-        ("surround-check", 20, 10),
-        ("surround-shadows", 20, 10),
-        ("surround-tune-shadows", 20, 10),
+        ("surround-tune", 30, 10),
+        ("surround-check", 30, 10),
+        ("surround-shadows", 30, 10),
+        ("surround-tune-shadows", 30, 10),
+        ("surround-train", 10, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
@@ -55,7 +56,7 @@ def test_shipped_suites_load(name, jobs, drives):
     assert len(s.jobs) == jobs
     assert len({j.render_key for j in s.jobs}) == drives
     assert len({j.job_id for j in s.jobs}) == jobs
-    assert s.spec.role in ("tuning", "check", "regression")
+    assert s.spec.role in ("tuning", "check", "regression", "training")
 
 
 @pytest.mark.parametrize(
