@@ -165,6 +165,20 @@ def bench_fidelity_cmd(
         print(json.dumps(res))
 
 
+def _check_pixel_model(path: Path | None, detector: str) -> None:
+    """A clear error, before any work, for a classifier file that cannot be used."""
+    if path is None:
+        return
+    if detector != "learned":
+        raise ValueError(f"--pixel-model is for --detector learned, not {detector!r}")
+    from estimator.surround.pixel_classifier import PixelClassifier
+
+    try:
+        PixelClassifier.load(path)
+    except FileNotFoundError as e:
+        raise ValueError(str(e)) from e
+
+
 def _register_extensions() -> None:
     """Commands that live in their own modules (suites, history, baselines)."""
     import importlib
@@ -198,11 +212,14 @@ def run(
     ),
     detector: str = typer.Option(
         "hypotheses",
-        help="surround detector: hypotheses | paper (section 5 as written) | a plug-in "
+        help="surround detector: hypotheses | learned | paper (section 5 as written) | a plug-in "
         "package.module:ClassName",
     ),
     vehicle_mask: str | None = typer.Option(
         None, help="'gt': give the detector the true vehicle pixels (a diagnostic ceiling)"
+    ),
+    pixel_model: Path | None = typer.Option(
+        None, help="--detector learned: a classifier file (omnibench train-pixels)"
     ),
 ) -> None:
     """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
@@ -218,6 +235,7 @@ def run(
             raise ValueError(f"--road-mask {road_mask!r}: the only choice is 'gt'")
         if vehicle_mask not in (None, "gt"):
             raise ValueError(f"--vehicle-mask {vehicle_mask!r}: the only choice is 'gt'")
+        _check_pixel_model(pixel_model, detector)
     except ValueError as e:
         _fail(str(e))
 
@@ -235,6 +253,7 @@ def run(
             road_mask=road_mask,
             detector=detector,
             vehicle_mask=vehicle_mask,
+            pixel_model=pixel_model,
         )
     except (ScenarioError, DriveError, ValueError) as e:
         _fail(str(e))
@@ -375,8 +394,11 @@ def estimate(
     ),
     detector: str = typer.Option(
         "hypotheses",
-        help="surround detector: hypotheses | paper (section 5 as written) | a plug-in "
+        help="surround detector: hypotheses | learned | paper (section 5 as written) | a plug-in "
         "package.module:ClassName",
+    ),
+    pixel_model: Path | None = typer.Option(
+        None, help="--detector learned: a classifier file (omnibench train-pixels)"
     ),
     write_video: bool = typer.Option(
         True, "--video/--no-video", help="write analysis.mp4 (the side-by-side panels)"
@@ -404,6 +426,7 @@ def estimate(
         check_estimator(estimator)  # the cheap inputs first
         if surround:
             check_detector(detector)
+            _check_pixel_model(pixel_model, detector)
         given_times = frame_times(fps) if fps is not None else None
         config = parse_settings(settings)
         cam, mount = load_camera(camera)
@@ -424,7 +447,9 @@ def estimate(
             from scenarios.surround_outputs import SurroundRecorder
 
             recorder = SurroundRecorder(
-                make_surround(detector, seen, mount, DetectorConfig()),
+                make_surround(
+                    detector, seen, mount, DetectorConfig(pixel_model=str(pixel_model or ""))
+                ),
                 detector,
                 cam,
                 mount,

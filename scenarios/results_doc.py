@@ -151,6 +151,12 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def _detector_note(bench: dict[str, Any]) -> str:
+    """", DETECTOR" for a detection bench of another detector than the default, else ""."""
+    detector = bench.get("detector", DEFAULT_DETECTOR)
+    return "" if detector == DEFAULT_DETECTOR else f", {detector}"
+
+
 def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
     rows, stages = [], []
     for path, b in benches:
@@ -160,7 +166,7 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
             what = (b.get("bench") or path.stem) + (
                 f" ({name}{', shadows' if r.get('shadows') else ''}, {r.get('face_px')}-px faces)"
                 if name
-                else f" ({b['scenario']})"  # the drive it timed
+                else f" ({b['scenario']}{_detector_note(b)})"  # the drive it timed
                 if b.get("scenario")
                 else ""
             )

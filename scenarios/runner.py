@@ -128,20 +128,22 @@ def run_scenario(
     road_mask: str | None = None,
     detector: str = DEFAULT_DETECTOR,
     vehicle_mask: str | None = None,
+    pixel_model: Path | str | None = None,
 ) -> dict:
     """Render (resuming), estimate, detect, track and measure one scenario.
 
     road_mask: ``"gt"`` gives the estimator each frame's true road mask (what lies
     within ``MIN_HEIGHT_M`` of the road, from the range images): the speed it then
     reaches is what a perfect road segmentation would allow, a diagnostic ceiling.
-    detector: the surround detector, `DetectorConfig.method` ("hypotheses" or "paper"),
-    or a plug-in (`estimator.surround.plugin`).
+    detector: the surround detector, `DetectorConfig.method` ("hypotheses", "learned", "paper"),
+    or a plug-in (`estimator.surround.plugin`); pixel_model: the "learned" detector's
+    classifier file (None: the built-in one).
     vehicle_mask: ``"gt"`` gives the detector each frame's true vehicle pixels (id
     images) instead of its motion test: the figures it then reaches are what the plan
     view, the obstacle map and the tracker allow with a perfect segmentation, a
     diagnostic ceiling.
-    The cheap inputs (estimator, max_frames, road_mask, detector, vehicle_mask) are
-    checked before any rendering.
+    The cheap inputs (estimator, max_frames, road_mask, detector, vehicle_mask,
+    pixel_model) are checked before any rendering.
     """
     check_estimator(estimator)
     check_detector(detector)
@@ -155,6 +157,8 @@ def run_scenario(
         raise ValueError(f"road_mask must be 'gt' or None, got {road_mask!r}")
     if vehicle_mask not in (None, "gt"):
         raise ValueError(f"vehicle_mask must be 'gt' or None, got {vehicle_mask!r}")
+    if pixel_model is not None and not Path(pixel_model).is_file():
+        raise ValueError(f"pixel classifier {pixel_model}: no such file")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     drive_dir = Path(drive_dir) if drive_dir is not None else out_dir / "drive"
@@ -163,7 +167,11 @@ def run_scenario(
     camera, mount = load_camera(drive_dir / "camera.yaml")
     times = read_timestamps_csv(drive_dir / "timestamps.csv")
     can = read_can_csv(drive_dir / "can.csv")
-    det_cfg = replace(DetectorConfig(), max_range_m=scenario.detection_range_m)
+    det_cfg = replace(
+        DetectorConfig(),
+        max_range_m=scenario.detection_range_m,
+        pixel_model=str(pixel_model or ""),
+    )
     est = make_estimator(estimator, camera, mount)
     # surround analysis sees the road up to the car body's silhouette
     surround = make_surround(detector, with_folder_body_mask(camera, drive_dir), mount, det_cfg)

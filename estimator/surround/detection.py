@@ -69,6 +69,12 @@ its range (`estimator.surround.hidden`: the nearer, the wider; without a fit, at
 ``hidden_range_frac`` of the edge's range on the arc's middle); the tracker refines
 it (bearing-only update).
 
+``method="learned"`` marks the pixels with a fitted classifier instead of the score's
+threshold: the energies of every hypothesis, the separations S_j, the floor, the scores
+and their neighbourhood, the road range and the local brightness and contrast, at both
+levels (`estimator.surround.pixel_classifier`; fitted to rendered drives' id images by
+`scenarios.train_pixels`). Everything after the mask is the same.
+
 ``method="paper"`` runs the paper's section 5 as written instead, as a baseline:
 eq. 22 thresholded, plan view, 1 x N closing, blobs, nearest point.
 
@@ -155,7 +161,7 @@ class DetectorConfig:
     # is marked, and the neighbourhood whose score it sees [px, working scale]
     pixel_model: str = ""
     pixel_threshold: float = 0.7  # [-], 0..1
-    context_px: int = 7  # [px], odd
+    context_px: int = 7  # [px], odd; as when the classifier was fitted
     border_margin_px: int = 12  # [px] margin inside the field of view's outer rim left out
     # margin along the inner edge (the car-body mask): at the body cone's edge 1 px is
     # ~0.25 m of road: a wide margin there hides the ground point of every vehicle nearby

@@ -72,6 +72,14 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     )
     page = results_markdown([run], [detect], "omnibench results run")
     assert "| detect (dense-exit-omni-near) | 20.0 |" in page  # with the drive it timed
+    learned = tmp_path / "learned.json"
+    learned.write_text(
+        '{"bench": "detect", "scenario": "dense-exit-omni-near", "detector": "learned", '
+        '"ms_per_frame": 40.0}'
+    )
+    page = results_markdown([run], [detect, learned], "omnibench results run")
+    assert "| detect (dense-exit-omni-near) | 20.0 |" in page  # the default: no name
+    assert "| detect (dense-exit-omni-near, learned) | 40.0 |" in page
 
 
 def test_tuning_suite_is_said_to_be_not_held_out(tmp_path):

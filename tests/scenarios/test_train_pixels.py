@@ -84,3 +84,27 @@ def test_bad_inputs_are_refused_before_work(tmp_path):
             mount,
             DetectorConfig(method="learned", pixel_model=str(tmp_path / "missing.npz")),
         )
+
+
+def test_a_bad_pixel_model_is_refused_before_any_work(tmp_path):
+    """`run` and `estimate` name a missing classifier file, and --pixel-model without the
+    learned detector, before rendering or reading anything (no drive folder exists)."""
+    from typer.testing import CliRunner
+
+    from scenarios.cli import app
+
+    missing = tmp_path / "missing.npz"
+    for extra, message in (
+        (["--detector", "learned", "--pixel-model", str(missing)], "missing.npz"),
+        (["--pixel-model", str(missing)], "--detector learned"),
+    ):
+        res = CliRunner().invoke(
+            app, ["run", "highway-omni-near", "--out", str(tmp_path / "o")] + extra
+        )
+        assert res.exit_code == 2 and message in res.output, res.output
+        args = ["estimate", str(tmp_path / "nothing.mp4"), "--camera", "omni-far"]
+        res = CliRunner().invoke(
+            app, args + ["--can", "x.csv", "--out", str(tmp_path / "e")] + extra
+        )
+        assert res.exit_code == 2 and message in res.output, res.output
+    assert not (tmp_path / "o").exists()
