@@ -152,7 +152,7 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
 
 
 def _detector_note(bench: dict[str, Any]) -> str:
-    """", DETECTOR" for a detection bench of another detector than the default, else ""."""
+    """The detector a detection bench timed, after a comma (", learned"); "" for the default."""
     detector = bench.get("detector", DEFAULT_DETECTOR)
     return "" if detector == DEFAULT_DETECTOR else f", {detector}"
 
