@@ -44,7 +44,8 @@ def test_train_writes_a_model_the_detector_uses(dense, tmp_path):
     path = tmp_path / "m.npz"
     model = train([dense], path, TrainConfig(every=2, hidden=6, max_iter=150), progress=False)
     back = PixelClassifier.load(path)
-    assert back.meta["drives"] == [dense.name] and back.meta["features"] == feature_names(LAMS)
+    assert back.meta["drives"] == ["dense-freeway-omni-near camera omni-near seed 7"]
+    assert back.meta["features"] == feature_names(LAMS)
     camera, mount = load_camera(dense / "camera.yaml")
     cfg = DetectorConfig(method="learned", pixel_model=str(path))
     sa = SurroundAnalyzer(with_folder_body_mask(camera, dense), mount, cfg)
