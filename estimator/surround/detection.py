@@ -114,12 +114,14 @@ from estimator.surround.hidden import hidden_box
 from estimator.surround.outline import lower_outline, nearest_on_outline
 from estimator.surround.pixel_classifier import (
     BUILTIN_MODEL,
+    Energies,
     PixelClassifier,
     gather,
     level_features,
     pixel_features,
 )
 from estimator.surround.planview import PlanView, pixel_road_xy
+from estimator.surround.window import gauss_window, gradient_sq
 
 DEFAULT_DETECTOR = "hypotheses"  # `DetectorConfig.method` by default
 DETECTOR_METHODS = (DEFAULT_DETECTOR, "learned", "paper")  # `DetectorConfig.method`
@@ -354,11 +356,6 @@ def hypothesis_homography(
     return R + lam * np.outer(D, K)
 
 
-def _gauss(img: np.ndarray, K: int) -> np.ndarray:
-    K = max(3, int(K) | 1)
-    return cv2.GaussianBlur(img, (K, K), K / 4.0)
-
-
 class VehicleDetector:
     """Section 5 detector for one camera; lookups are built once."""
 
@@ -569,9 +566,11 @@ class VehicleDetector:
         sigma = cfg.registration_sigma_px / s
         if vehicle_mask is not None:
             return self._detect_given(a, vehicle_mask, ok, current_full, earlier_full, Hs)
-        score = self._score(a, warped, ok, K, cfg.energy_k, sigma)
         learned = cfg.method == "learned"
         features = learned or self.keep_features
+        # the pixel classifier's evidence: the energies the scores compute, kept
+        fine_e, coarse_e = (Energies(), Energies()) if features else (None, None)
+        score = self._score(a, warped, ok, K, cfg.energy_k, sigma, keep=fine_e)
         fine_score = score
         moving = (score > cfg.score_threshold) & ok
         # ego (nearly) stopped: no static hypothesis explains the pixel (eq. 22's test)
@@ -596,17 +595,17 @@ class VehicleDetector:
                 > 0
             )
             wc = {lam: cv2.pyrDown(w) for lam, w in warped.items()}
-            sc = self._score(ac, wc, okc, max(3.0, K / 2), cfg.energy_k, sigma / 2)
+            sc = self._score(ac, wc, okc, max(3.0, K / 2), cfg.energy_k, sigma / 2, keep=coarse_e)
             up = cv2.resize(sc, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_LINEAR)
             if cfg.coarse_level:
                 moving |= (up > cfg.score_threshold) & ok
                 score = np.maximum(score, up)
         if features:
             planes = pixel_features(
-                level_features(a, warped, ok, K, cfg.energy_k, sigma),
+                level_features(a, fine_e, K, cfg.energy_k, sigma),
                 [
                     cv2.resize(f, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_LINEAR)
-                    for f in level_features(ac, wc, okc, max(3.0, K / 2), cfg.energy_k, sigma / 2)
+                    for f in level_features(ac, coarse_e, max(3.0, K / 2), cfg.energy_k, sigma / 2)
                 ],
                 fine_score,
                 up,
@@ -878,16 +877,18 @@ class VehicleDetector:
         okf: np.ndarray,
         K: float,
         box: bool,
+        keep: Energies | None = None,
     ) -> tuple[np.ndarray, np.ndarray, Callable]:
         """(min static E, <|g|^2>, the window average) over okf (float32 0/1 mask).
 
         E_lambda = <(a - I_lambda)^2> over the static hypotheses (lambda >= 1); <.>:
-        Gaussian window K [px] (``box``: a K x K box).
+        Gaussian window K [px] (``box``: a K x K box). ``keep``: filled with each E_lambda
+        and <|g|^2>.
         """
         kk = int(K)
 
         def avg(z: np.ndarray) -> np.ndarray:
-            return cv2.blur(z, (kk, kk)) if box else _gauss(z, K)
+            return cv2.blur(z, (kk, kk)) if box else gauss_window(z, K)
 
         E_sta = None
         for lam, w in warped.items():
@@ -895,9 +896,11 @@ class VehicleDetector:
                 d = (a - w) * okf
                 e = avg(d * d)
                 E_sta = e if E_sta is None else np.minimum(E_sta, e)
-        gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-        G2 = avg((gu * gu + gv * gv) * okf)
+                if keep is not None:
+                    keep.E[lam] = e
+        G2 = avg(gradient_sq(a) * okf)
+        if keep is not None:
+            keep.G2 = G2
         return E_sta, G2, avg
 
     @staticmethod
@@ -909,6 +912,7 @@ class VehicleDetector:
         k: float,
         sigma: float,
         box: bool = False,
+        keep: Energies | None = None,
     ) -> np.ndarray:
         """m = max_j (min_static E - E_j) / (S_j + k + <|g|^2> sigma^2), 0 outside ok.
 
@@ -916,10 +920,11 @@ class VehicleDetector:
         hypothesis j's predictions are. A hypothesis between the car and the road
         (0 < lambda_j < 1) counts only where S_j >= k + <|g|^2> sigma^2: where it
         predicts what the road does within noise and misregistration, it decides nothing.
-        <.>: Gaussian window K [px] (``box``: a K x K box).
+        <.>: Gaussian window K [px] (``box``: a K x K box). ``keep``: filled with every
+        E_lambda, S_j and <|g|^2> (the pixel classifier's evidence).
         """
         okf = ok.astype(np.float32)
-        E_sta, G2, avg = VehicleDetector._energies(a, warped, okf, K, box)
+        E_sta, G2, avg = VehicleDetector._energies(a, warped, okf, K, box, keep)
         floor = k + G2 * (sigma * sigma)
         m = None
         for lam, w in warped.items():
@@ -928,7 +933,10 @@ class VehicleDetector:
             d = (a - w) * okf
             sep = (warped[1.0] - w) * okf
             S_j = avg(sep * sep)  # road against hypothesis j
-            m_j = (E_sta - avg(d * d)) / (S_j + floor)
+            E_j = avg(d * d)
+            if keep is not None:
+                keep.E[lam], keep.S[lam] = E_j, S_j
+            m_j = (E_sta - E_j) / (S_j + floor)
             if lam > 0.0:  # decided only where its prediction and the road's differ
                 m_j[S_j < floor] = -1.0  # by more than the floor (noise, misregistration)
             m = m_j if m is None else np.maximum(m, m_j)

@@ -20,8 +20,6 @@ one to labelled recordings for real footage (`scenarios.train_pixels`).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,51 +27,49 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-BUILTIN_MODEL = Path(__file__).with_name("vehicle_pixels.npz")  # fitted to `surround-tune`
+from estimator.fileio import atomic_write
+from estimator.surround.window import gauss_window
+
+BUILTIN_MODEL = Path(__file__).with_name("vehicle_pixels.npz")  # fitted to `surround-train`
 
 
-def _gauss(img: np.ndarray, K: float) -> np.ndarray:
-    k = max(3, int(K) | 1)
-    return cv2.GaussianBlur(img, (k, k), k / 4.0)
+@dataclass
+class Energies:
+    """The windowed energies one level's motion score computed (`VehicleDetector._score`
+    with ``keep``), each (h, w) float32: E[lambda] = <(I - I_lambda)^2> for every
+    hypothesis, S[lambda] = <(I_road - I_lambda)^2> for the moving ones, G2 = <|g|^2>."""
+
+    E: dict[float, np.ndarray] = field(default_factory=dict)
+    S: dict[float, np.ndarray] = field(default_factory=dict)
+    G2: np.ndarray | None = None
 
 
 def level_features(
-    a: np.ndarray,
-    warped: dict[float, np.ndarray],
-    ok: np.ndarray,
-    K: float,
-    k: float,
-    sigma: float,
+    a: np.ndarray, energies: Energies, K: float, k: float, sigma: float
 ) -> list[np.ndarray]:
     """One pyramid level's features, each (h, w) float32.
 
-    a: the current frame (grey); warped: the earlier frame warped by each hypothesis
-    lambda (static >= 1, moving < 1; 1.0 the road); ok: (h, w) bool, the analysed
-    pixels; K [px]: Gaussian window; k [grey level^2]: noise floor; sigma [px]:
-    misregistration allowed on edges.
+    a: the current frame (grey); energies: what the level's motion score computed; K
+    [px]: its Gaussian window; k [grey level^2]: noise floor; sigma [px]: misregistration
+    allowed on edges.
 
     Per hypothesis (ascending lambda): log(E_lambda + f) - log(min_static E + f), with
-    E the windowed residual energy and f = k + <|g|^2> sigma^2 the floor; then log f;
-    per moving hypothesis other than the car-fixed one: log(S_j + f) - log f (S_j the
-    windowed difference of the road's and its predictions); the windowed mean
-    brightness and the local standard deviation [grey level / 255].
+    f = k + <|g|^2> sigma^2 the floor; then log f; per moving hypothesis other than the
+    car-fixed one: log(S_j + f) - log f; the windowed mean brightness and the local
+    standard deviation [grey level / 255].
     """
-    okf = ok.astype(np.float32)
-    E = {lam: _gauss(((a - w) * okf) ** 2, K) for lam, w in sorted(warped.items())}
+    E = dict(sorted(energies.E.items()))
     e_static = np.minimum.reduce([e for lam, e in E.items() if lam >= 1.0])
-    gu = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-    gv = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    floor = k + _gauss((gu * gu + gv * gv) * okf, K) * sigma * sigma
+    floor = k + energies.G2 * sigma * sigma
     log_floor = np.log(floor)
     out = [np.log(e + floor) - np.log(e_static + floor) for e in E.values()]
     out.append(log_floor)
-    road = warped[1.0]
-    for lam, w in sorted(warped.items()):
+    for lam, S in sorted(energies.S.items()):
         if 0.0 < lam < 1.0:
-            out.append(np.log(_gauss(((road - w) * okf) ** 2, K) + floor) - log_floor)
-    mean = _gauss(a, K)
+            out.append(np.log(S + floor) - log_floor)
+    mean = gauss_window(a, K)
     out.append(mean / 255.0)
-    out.append(np.sqrt(np.maximum(_gauss(a * a, K) - mean * mean, 0.0)) / 255.0)
+    out.append(np.sqrt(np.maximum(gauss_window(a * a, K) - mean * mean, 0.0)) / 255.0)
     return out
 
 
@@ -97,8 +93,8 @@ def pixel_features(
     c = int(context_px) | 1
     box = np.ones((c, c), np.uint8)
     ctx = [
-        _gauss(score, 2 * c + 1),
-        _gauss(score_coarse, 2 * c + 1),
+        gauss_window(score, 2 * c + 1),
+        gauss_window(score_coarse, 2 * c + 1),
         cv2.dilate(score, box),
         cv2.dilate(score_coarse, box),
     ]
@@ -166,12 +162,9 @@ class PixelClassifier:
 
     def save(self, path: str | Path) -> None:
         """Write the model to ``path`` (.npz) atomically."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
-        os.close(fd)
-        try:
-            np.savez(
+        atomic_write(
+            Path(path),
+            lambda tmp: np.savez(
                 tmp,
                 mean=self.mean,
                 scale=self.scale,
@@ -180,12 +173,8 @@ class PixelClassifier:
                 w2=self.w2,
                 b2=np.array(self.b2),
                 meta=np.array(json.dumps(self.meta)),
-            )
-            os.chmod(tmp, 0o644)  # as a file written with open()
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            ),
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> PixelClassifier:

@@ -8,8 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import check_grad
 
+from estimator.surround.detection import VehicleDetector
 from estimator.surround.pixel_classifier import (
     BUILTIN_MODEL,
+    Energies,
     PixelClassifier,
     cross_entropy,
     feature_names,
@@ -112,7 +114,10 @@ def test_level_features_tell_which_hypothesis_explains_a_patch():
     current = warped[1.0].copy()
     current[30:50, 30:50] = warped[0.0][30:50, 30:50]
     ok = np.ones(shape, bool)
-    f = level_features(current, warped, ok, K=5.0, k=40.0, sigma=0.7)
+    energies = Energies()
+    VehicleDetector._score(current, warped, ok, 5.0, 40.0, 0.7, keep=energies)
+    assert sorted(energies.E) == sorted(LAMS) and sorted(energies.S) == [0.0, 0.25, 0.5, 0.75]
+    f = level_features(current, energies, K=5.0, k=40.0, sigma=0.7)
     assert len(f) == len(LAMS) + 1 + 3 + 2
     e0, e_road = f[0], f[LAMS.index(1.0)]
     assert e0[40, 40] < -1.0
