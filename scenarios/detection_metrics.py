@@ -630,6 +630,42 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     }
 
 
+def candidate_breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
+    """The figures of a detector's candidates, the stage before the tracker decides which
+    are vehicles: their recall and precision ("detection"), by range band, bearing sector
+    and motion (`breakdown`), what the unmatched are, and all of these over the frames
+    where the ego car moves and over those where it is stopped ("ego_state"). Set beside
+    the tracks' figures, they tell whether a vehicle is lost before or in the tracker."""
+    cfg = config if config is not None else MetricsConfig()
+    frames = list(frames)
+    placed = _Placed.of(frames, cfg)
+    moving_frames = np.array([f.ego_moving for f in frames], bool)
+    ego = {}
+    for state, keep in (("moving", moving_frames), ("stopped", ~moving_frames)):
+        sub = placed.of_frames(keep)
+        ego[state] = {"frames": int(keep.sum()), "detection": _counted(sub), **_where(sub)}
+    return {
+        "detection": _counted(placed),
+        **_where(placed),
+        "unmatched": unmatched_split(placed, cfg.gate_m),
+        "ego_state": ego,
+    }
+
+
+def _counted(placed: _Placed) -> dict:
+    """{"recall", "precision", "gt_count", "matched", "hyp_count"} of placed vehicles and
+    hypotheses (NaN: nothing to count)."""
+    n, m = len(placed.found), int(placed.found.sum())
+    hn, hm = len(placed.matched), int(placed.matched.sum())
+    return {
+        "recall": ratio(m, n),
+        "precision": ratio(hm, hn),
+        "gt_count": n,
+        "matched": m,
+        "hyp_count": hn,
+    }
+
+
 def _where(placed: _Placed) -> dict:
     """{"range_bands", "sectors", "motion"} of `breakdown` for the placed vehicles and
     hypotheses."""

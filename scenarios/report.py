@@ -46,6 +46,37 @@ def _rows_table(rows: dict, columns: tuple[str, ...]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+STAGE_COLUMNS = (
+    "mask pixel recall",
+    "candidate recall",
+    "candidate precision",
+    "track recall",
+    "track precision",
+)
+
+
+def _stage_rows(surround: dict) -> dict:
+    """Per range band, each stage's recall (`STAGE_COLUMNS`): {} without the candidates'
+    figures (runs written before they were measured)."""
+    cand = surround.get("candidates", {}).get("ego_state", {}).get("moving", {})
+    trk = surround.get("tracks", {}).get("ego_state", {}).get("moving", {})
+    seg = surround.get("segmentation", {}) if isinstance(surround.get("segmentation"), dict) else {}
+    if "range_bands" not in cand:
+        return {}
+    nan = float("nan")
+    rows = {}
+    for band, c in cand["range_bands"].items():
+        t = trk.get("range_bands", {}).get(band, {})
+        rows[band] = {
+            "mask pixel recall": seg.get("range_bands", {}).get(band, {}).get("pixel_recall", nan),
+            "candidate recall": c.get("recall", nan),
+            "candidate precision": c.get("precision", nan),
+            "track recall": t.get("recall", nan),
+            "track precision": t.get("precision", nan),
+        }
+    return rows
+
+
 def _surround_section(surround: dict) -> str:
     """Where the tracks fail (`scenarios.detection_metrics.breakdown`): by range band,
     bearing sector, the vehicles' motion and the ego car's state."""
@@ -95,6 +126,15 @@ def _surround_section(surround: dict) -> str:
                 + "<h3>ego car moving: by motion relative to the ego car</h3>"
                 + _rows_table(moving["motion"], ("recall", "gt_count", "matched"))
             )
+    stages = _stage_rows(surround)
+    if stages:
+        parts.append(
+            "<h3>ego car moving: where vehicles are lost, stage by stage, by range</h3>"
+            + _rows_table(stages, STAGE_COLUMNS)
+            + "<p>the mask's share of the vehicles' pixels (every frame); the detector's "
+            "candidates (before the tracker decides which are vehicles); the reported "
+            "tracks</p>"
+        )
     seg = surround.get("segmentation")
     if isinstance(seg, dict):
         parts.append(

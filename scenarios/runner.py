@@ -38,6 +38,7 @@ from scenarios.detection_metrics import (
     GtVehicle,
     MetricsConfig,
     breakdown,
+    candidate_breakdown,
     evaluate,
     motion_class,
 )
@@ -184,7 +185,7 @@ def run_scenario(
     unit_rays = camera_unit_rays(camera) if road_mask else None
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
-    records, eval_det, t_est = [], [], []
+    records, eval_det, eval_cand, t_est = [], [], [], []
     still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
     # tracks.csv, tracks.png, surround.png and analysis.mp4, as for a recording
     recorder = SurroundRecorder(
@@ -238,6 +239,8 @@ def run_scenario(
             dets = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.detections)]
             det_boxes = [d.box for d in sf.detection.detections]
             eval_det.append(EvalFrame(gt_set, dets, t, moving, box_centres(det_boxes)))
+            cands = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.candidates)]
+            eval_cand.append(EvalFrame(gt_set, cands, t, moving))
         recorder.finish(title=f"{scenario.name} - {estimator}")
     finally:
         recorder.close()
@@ -288,6 +291,7 @@ def run_scenario(
         "track_detection": trk["track_detection"],
         "track_localization": trk["track_localization"],
         "surround": {
+            "candidates": candidate_breakdown(eval_cand, mcfg),
             "detections": breakdown(eval_det, mcfg),
             **trk["surround"],
             **({"segmentation": audit.result()} if audit is not None else {}),

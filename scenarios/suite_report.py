@@ -48,6 +48,7 @@ TABLE_METRICS = (
     ("points_above_road.speed_info_share", "speed info above road"),
     ("point_pull.speed_pull_pct", "speed pull at truth [%]"),
     ("point_pull.yaw_rate_pull_dps", "yaw pull at truth [deg/s]"),
+    ("surround.candidates.detection.recall", "candidate recall"),
     ("detection.recall", "recall"),
     ("detection.precision", "precision"),
     ("tracking.mota", "MOTA"),

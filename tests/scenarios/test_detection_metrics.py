@@ -18,6 +18,7 @@ from scenarios.detection_metrics import (
     box_footprint,
     box_iou_xywh,
     breakdown,
+    candidate_breakdown,
     evaluate,
     hypotheses_from_tracks,
     motion_class,
@@ -399,6 +400,34 @@ def test_breakdown_counts_by_band_sector_motion_and_ego_state():
     assert ego["moving"]["range_bands"]["0-5 m"]["hyp_count"] == 2
     assert ego["stopped"]["range_bands"]["0-5 m"]["gt_count"] == 1
     assert ego["stopped"]["sectors"]["left"]["recall"] == 1.0
+
+
+def test_candidates_are_counted_without_ids_by_band_and_ego_state():
+    """A detector's candidates: recall and precision per frame's matching, whatever the
+    ids (a candidate has none across frames), by range band and ego state."""
+    ahead = car(1, 8.0, 0.0)  # nearest point 6 m ahead
+    far = car(2, 22.0, 3.0)  # nearest point ~20 m ahead
+    frames = [
+        # moving: ahead found twice over (one duplicate), far missed, clutter at 30 m
+        EvalFrame([ahead, far], [(0, 6.0, 0.0), (1, 6.5, 0.3), (2, 30.0, -8.0)]),
+        # moving: both found; ids restart in every frame
+        EvalFrame([ahead, far], [(0, 6.1, 0.0), (1, 20.2, 3.0)]),
+        # stopped: ahead missed, no candidate
+        EvalFrame([ahead], [], ego_moving=False),
+    ]
+    c = candidate_breakdown(frames)
+    assert c["detection"] == {
+        "recall": 0.6, "precision": 0.6, "gt_count": 5, "matched": 3, "hyp_count": 5,
+    }  # fmt: skip
+    moving = c["ego_state"]["moving"]
+    assert moving["frames"] == 2 and moving["detection"]["recall"] == 0.75
+    assert moving["range_bands"]["5-10 m"]["recall"] == 1.0
+    assert moving["range_bands"]["15-25 m"]["recall"] == 0.5
+    stopped = c["ego_state"]["stopped"]
+    assert stopped["detection"]["recall"] == 0.0 and math.isnan(stopped["detection"]["precision"])
+    u = c["unmatched"]
+    assert (u["duplicate"], u["clutter"]) == (1, 1)
+    assert "tracking" not in c and "tracking" not in moving  # no tracks to score
 
 
 def test_unmatched_hypotheses_split_into_duplicate_misplaced_and_clutter():

@@ -62,6 +62,12 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
         u = sur[part]["unmatched"]  # every unmatched point is one of the three kinds
         assert u["unmatched"] == u["duplicate"] + u["misplaced"] + u["clutter"]
         assert u["hyp_count"] == sum(b["hyp_count"] for b in bands.values())
+    cand = sur["candidates"]  # the detector's candidates, before the tracker
+    assert list(cand["range_bands"]) == list(bands)
+    assert cand["detection"]["gt_count"] == m["detection"]["gt_count"]
+    assert cand["unmatched"]["hyp_count"] == cand["detection"]["hyp_count"] > 0
+    assert 0.0 < cand["detection"]["recall"] <= 1.0
+    assert "where vehicles are lost, stage by stage" in (out / "report.html").read_text()
     assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
     assert "by motion relative to the ego car" in (out / "report.html").read_text()
     assert "what the unmatched track points are" in (out / "report.html").read_text()
