@@ -48,6 +48,7 @@ def _suite(tmp_path: Path, **data) -> Path:
         ("surround-shadows", 30, 10),
         ("surround-tune-shadows", 30, 10),
         ("surround-train", 10, 10),
+        ("library-detectors", 20, 10),
     ],
 )
 def test_shipped_suites_load(name, jobs, drives):
