@@ -295,7 +295,9 @@ def baseline_check(
 
 
 def results(
-    run_dirs: list[Path] = typer.Argument(..., help="finished `omnibench suite` folders"),
+    run_dirs: list[Path] = typer.Argument(
+        ..., help="finished `omnibench suite` folders, or their records (--records)"
+    ),
     out: Path = typer.Option(Path("docs/RESULTS.md"), "--out", help="Markdown page to write"),
     bench: list[Path] = typer.Option(
         [], "--bench", help="file holding an `omnibench bench ... --json` output (repeatable)"
@@ -303,28 +305,42 @@ def results(
     readme: Path | None = typer.Option(
         None, "--readme", help="also rewrite this README's headline-figures block"
     ),
+    records: Path | None = typer.Option(
+        None,
+        "--records",
+        help="also write each suite run's record (SUITE.json) here, e.g. docs/results",
+    ),
 ) -> None:
     """Write the results page (docs/RESULTS.md) from suite runs and benchmark outputs."""
-    from estimator.fileio import write_text
+    from estimator.fileio import write_json, write_text
     from scenarios.results_doc import (
         ResultsError,
         command_line,
         headline_markdown,
         load_summary,
+        record_name,
+        record_of,
         replace_readme_block,
         results_markdown,
     )
 
     try:
+        summaries = [load_summary(d) for d in run_dirs]
         text = results_markdown(run_dirs, bench, command_line())
         if readme is not None:
-            block = headline_markdown([load_summary(d) for d in run_dirs])
+            block = headline_markdown(summaries)
             new_readme = replace_readme_block(readme.read_text(), block, str(readme))
+        names = [record_name(s) for s in summaries]
+        if records is not None and len(set(names)) < len(names):
+            raise ResultsError(f"--records: two runs of one suite ({', '.join(sorted(names))})")
     except (ResultsError, FileNotFoundError) as e:
         _fail(str(e))
     write_text(out, text)
     if readme is not None:
         write_text(readme, new_readme)
+    if records is not None:
+        for s, name in zip(summaries, names, strict=True):
+            write_json(records / name, record_of(s))
     console.print(f"wrote {out} ({len(run_dirs)} suite runs, {len(bench)} benchmarks)")
 
 

@@ -1,7 +1,10 @@
 """`omnibench results`: docs/RESULTS.md generated from suite runs and benchmark outputs.
 
 Every figure of the page comes from a file a command wrote: a suite run's
-``summary.json`` (`omnibench suite`) or the JSON line of an ``omnibench bench ...
+``summary.json`` (`omnibench suite`), or its results record (`record_of`, written by
+``omnibench results --records DIR``: the summary cut to what the page reads, small enough
+to keep in the repository, so that the page can be regenerated with some suites run
+again and the others from their records), or the JSON line of an ``omnibench bench ...
 --json`` command saved to a file. The page states the command that made it, the
 commit and the date, so that no figure is typed by hand.
 """
@@ -69,12 +72,52 @@ def _metrics(job: dict[str, Any]) -> dict[str, Any]:
     return m
 
 
-def load_summary(run_dir: Path) -> dict[str, Any]:
-    """`scenarios.regression.read_summary`, its error as a ResultsError."""
+# what the page reads of a job's metrics besides its columns (`_metrics`, the headline)
+_READ_KEYS = ("frames", "ego.mean_speed_mps", "ego.prior_speed_rmse_mps", "detection.gt_count")
+RECORD_FORMAT = 1  # [-] version of a results record (`record_of`)
+
+
+def load_summary(path: Path) -> dict[str, Any]:
+    """A suite run's summary: ``summary.json`` of a run folder
+    (`scenarios.regression.read_summary`), or a results record (`record_of`) file; errors
+    as a ResultsError naming the path."""
+    p = Path(path)
+    if p.is_file():
+        try:
+            record = json.loads(p.read_text())
+        except json.JSONDecodeError as e:
+            raise ResultsError(f"{p}: not valid JSON: {e}") from None
+        if not isinstance(record, dict) or record.get("record_format") != RECORD_FORMAT:
+            raise ResultsError(
+                f"{p}: not a results record (format {RECORD_FORMAT}; `omnibench results "
+                "--records` writes them)"
+            )
+        return record
     try:
-        return read_summary(run_dir)
+        return read_summary(p)
     except BaselineError as e:
         raise ResultsError(str(e)) from None
+
+
+def record_of(summary: dict[str, Any]) -> dict[str, Any]:
+    """A suite run's summary cut to what the results page reads: the run's provenance and
+    each job's description with the metrics of the page's columns. Kept in the repository
+    (`omnibench results --records`), it regenerates the run's section without the run's
+    folder, with the same figures and provenance."""
+    keys = {k for k, _, _ in EGO_COLUMNS + DETECTION_COLUMNS} | set(_READ_KEYS)
+    jobs = []
+    for j in summary.get("jobs", []):
+        job = {k: v for k, v in j.items() if k not in ("metrics", "dir", "scenario_source")}
+        job["metrics"] = {k: v for k, v in (j.get("metrics") or {}).items() if k in keys}
+        jobs.append(job)
+    top = {k: v for k, v in summary.items() if k not in ("jobs", "cache_dir")}
+    return {"record_format": RECORD_FORMAT, **top, "jobs": jobs}
+
+
+def record_name(summary: dict[str, Any]) -> str:
+    """File name of a run's record: its suite's name (one record per suite)."""
+    suite = str(summary.get("suite") or "suite")
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in suite) + ".json"
 
 
 def load_bench(path: Path) -> dict[str, Any]:

@@ -115,3 +115,68 @@ def test_readme_headline_block_is_replaced_and_nothing_else(tmp_path):
     assert new.startswith("# title\n\n") and new.endswith(f"{README_END}\n\nmore text\n")
     with pytest.raises(ResultsError, match="headline block"):
         replace_readme_block("# no block\n", block)
+
+
+def test_a_record_regenerates_the_same_page_and_keeps_only_what_it_reads(tmp_path):
+    """A run's record (`record_of`) stands in for its folder: the same section, figures
+    and provenance; the metrics the page does not read are left out."""
+    from datetime import UTC, datetime
+
+    from scenarios.results_doc import load_summary, record_of
+
+    run = _summary(tmp_path)
+    summary = json.loads((run / "summary.json").read_text())
+    summary["jobs"][0]["metrics"]["surround.tracks.range_bands.0-5 m.recall"] = 0.5
+    summary["jobs"][0]["dir"] = "jobs/merge"
+    summary["cache_dir"] = "/somewhere/cache"
+    (run / "summary.json").write_text(json.dumps(summary))
+    record = record_of(load_summary(run))
+    assert "surround.tracks.range_bands.0-5 m.recall" not in record["jobs"][0]["metrics"]
+    assert "cache_dir" not in record and "dir" not in record["jobs"][0]
+    path = tmp_path / "check-x.json"
+    path.write_text(json.dumps(record))
+    now = datetime(2026, 12, 7, tzinfo=UTC)
+    from_run = results_markdown([run], [], "omnibench results x", now)
+    assert results_markdown([path], [], "omnibench results x", now) == from_run
+    assert "| 140 | 0.91 | – | 0.88 |" in from_run
+
+
+def test_a_json_file_that_is_no_record_is_refused_naming_it(tmp_path):
+    p = tmp_path / "summary-like.json"
+    p.write_text(json.dumps({"suite": "x", "jobs": []}))
+    with pytest.raises(ResultsError, match="summary-like.json: not a results record"):
+        results_markdown([p], [], "x")
+    p.write_text("{not json")
+    with pytest.raises(ResultsError, match="summary-like.json: not valid JSON"):
+        results_markdown([p], [], "x")
+
+
+def test_results_command_writes_one_record_per_suite(tmp_path):
+    """`omnibench results RUN --records DIR` writes DIR/SUITE.json, which the command then
+    reads in place of the run; two runs of one suite are refused before anything is
+    written."""
+    import typer
+    from typer.testing import CliRunner
+
+    from scenarios.cli_suite import register
+
+    app = typer.Typer()
+    register(app)
+    run = _summary(tmp_path)
+    records, page = tmp_path / "records", tmp_path / "RESULTS.md"
+    res = CliRunner().invoke(
+        app, ["results", str(run), "--out", str(page), "--records", str(records)]
+    )
+    assert res.exit_code == 0, res.output
+    record = records / "check-x.json"
+    assert json.loads(record.read_text())["run_id"] == "check-x-1"
+    again = tmp_path / "again.md"
+    res = CliRunner().invoke(app, ["results", str(record), "--out", str(again)])
+    assert res.exit_code == 0, res.output
+    table = [line for line in page.read_text().splitlines() if line.startswith("| merge")]
+    assert table and table == [l for l in again.read_text().splitlines() if l.startswith("| merge")]
+    twice = tmp_path / "twice.md"
+    args = ["results", str(run), str(record), "--out", str(twice), "--records", str(records)]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code != 0 and "two runs of one suite" in res.output
+    assert not twice.exists()
