@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -180,3 +181,21 @@ def test_results_command_writes_one_record_per_suite(tmp_path):
     res = CliRunner().invoke(app, args)
     assert res.exit_code != 0 and "two runs of one suite" in res.output
     assert not twice.exists()
+
+
+RECORDS = sorted((Path(__file__).parents[2] / "docs" / "results").glob("*.json"))
+
+
+@pytest.mark.parametrize("path", RECORDS, ids=[p.stem for p in RECORDS])
+def test_kept_records_are_the_shipped_suites_jobs(path):
+    """Each record in docs/results is a finished run of a shipped suite as it is now: the
+    same jobs (a suite changed since its run needs a new record), from a clean commit."""
+    from scenarios.results_doc import load_summary
+    from scenarios.suite import load_suite
+
+    record = load_summary(path)
+    assert path.name == f"{record['suite']}.json"
+    assert not record["dirty"] and len(record["commit"]) == 40
+    suite = load_suite(record["suite"])
+    assert {j["job_id"] for j in record["jobs"]} == {j.job_id for j in suite.jobs}
+    assert all(j["status"] == "ok" and j["metrics"] for j in record["jobs"])
