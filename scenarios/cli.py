@@ -165,20 +165,6 @@ def bench_fidelity_cmd(
         print(json.dumps(res))
 
 
-def _check_pixel_model(path: Path | None, detector: str) -> None:
-    """A clear error, before any work, for a classifier file that cannot be used."""
-    if path is None:
-        return
-    if detector != "learned":
-        raise ValueError(f"--pixel-model is for --detector learned, not {detector!r}")
-    from estimator.surround.pixel_classifier import PixelClassifier
-
-    try:
-        PixelClassifier.load(path)
-    except FileNotFoundError as e:
-        raise ValueError(str(e)) from e
-
-
 def _register_extensions() -> None:
     """Commands that live in their own modules (suites, history, baselines)."""
     import importlib
@@ -224,7 +210,7 @@ def run(
 ) -> None:
     """Render (or reuse) a scenario, estimate ego-motion, write metrics.json and plots."""
     from estimator.egomotion.baselines import check_estimator
-    from estimator.surround.plugin import check_detector
+    from estimator.surround.plugin import check_detector, check_pixel_model
 
     try:  # the cheap inputs first: nothing is simulated or rendered for a bad one
         check_estimator(estimator)
@@ -235,7 +221,7 @@ def run(
             raise ValueError(f"--road-mask {road_mask!r}: the only choice is 'gt'")
         if vehicle_mask not in (None, "gt"):
             raise ValueError(f"--vehicle-mask {vehicle_mask!r}: the only choice is 'gt'")
-        _check_pixel_model(pixel_model, detector)
+        check_pixel_model(pixel_model, detector)
     except ValueError as e:
         _fail(str(e))
 
@@ -419,14 +405,14 @@ def estimate(
         read_timestamps_csv,
         video_fps,
     )
-    from estimator.surround.plugin import check_detector, make_surround
+    from estimator.surround.plugin import check_detector, check_pixel_model, make_surround
 
     recorder = None
     try:
         check_estimator(estimator)  # the cheap inputs first
         if surround:
             check_detector(detector)
-            _check_pixel_model(pixel_model, detector)
+            check_pixel_model(pixel_model, detector)
         given_times = frame_times(fps) if fps is not None else None
         config = parse_settings(settings)
         cam, mount = load_camera(camera)

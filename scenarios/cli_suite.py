@@ -321,12 +321,12 @@ def results(
         record_name,
         record_of,
         replace_readme_block,
-        results_markdown,
+        results_page,
     )
 
     try:
         summaries = [load_summary(d) for d in run_dirs]
-        text = results_markdown(run_dirs, bench, command_line())
+        text = results_page(summaries, bench, command_line())
         if readme is not None:
             block = headline_markdown(summaries)
             new_readme = replace_readme_block(readme.read_text(), block, str(readme))

@@ -598,7 +598,9 @@ def unmatched_split(placed: _Placed, gate_m: float) -> dict:
     }
 
 
-def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
+def breakdown(
+    frames: Sequence[EvalFrame], config: MetricsConfig | None = None, tracked: bool = True
+) -> dict:
     """Where detection fails: recall and precision by range band (`RANGE_BANDS_M`) and by
     bearing sector (`sector`), recall by the vehicles' motion (`MOTION_CLASSES`;
     a hypothesis has no motion, so no precision there), what the unmatched hypotheses are
@@ -608,6 +610,10 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     A vehicle is placed by its footprint point nearest the camera, a hypothesis by its
     own point; a matched pair counts in the vehicle's bin for recall and in the
     hypothesis' bin for precision (the same bin but at a bin's edge). NaN: an empty bin.
+
+    tracked=False: hypotheses without identities across frames (a detector's candidates,
+    before the tracker decides which are vehicles): no tracking or localisation metrics;
+    "detection" (recall, precision and counts, `_counted`) overall and per ego state.
     """
     cfg = config if config is not None else MetricsConfig()
     frames = list(frames)
@@ -616,40 +622,19 @@ def breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) 
     moving_frames = np.array([f.ego_moving for f in frames], bool)
     for state, moving in (("moving", True), ("stopped", False)):
         keep = moving_frames == moving
-        sub = [f for f, k in zip(frames, keep, strict=True) if k]
-        m = evaluate(sub, cfg)
-        ego[state] = {
-            "frames": len(sub),
-            **{key: m[key] for key in ("detection", "tracking", "localization")},
-            **_where(placed.of_frames(keep)),
-        }
-    return {
-        **_where(placed),
-        "unmatched": unmatched_split(placed, cfg.gate_m),
-        "ego_state": ego,
-    }
-
-
-def candidate_breakdown(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -> dict:
-    """The figures of a detector's candidates, the stage before the tracker decides which
-    are vehicles: their recall and precision ("detection"), by range band, bearing sector
-    and motion (`breakdown`), what the unmatched are, and all of these over the frames
-    where the ego car moves and over those where it is stopped ("ego_state"). Set beside
-    the tracks' figures, they tell whether a vehicle is lost before or in the tracker."""
-    cfg = config if config is not None else MetricsConfig()
-    frames = list(frames)
-    placed = _Placed.of(frames, cfg)
-    moving_frames = np.array([f.ego_moving for f in frames], bool)
-    ego = {}
-    for state, keep in (("moving", moving_frames), ("stopped", ~moving_frames)):
         sub = placed.of_frames(keep)
-        ego[state] = {"frames": int(keep.sum()), "detection": _counted(sub), **_where(sub)}
-    return {
-        "detection": _counted(placed),
+        if tracked:
+            m = evaluate([f for f, k in zip(frames, keep, strict=True) if k], cfg)
+            scores = {key: m[key] for key in ("detection", "tracking", "localization")}
+        else:
+            scores = {"detection": _counted(sub)}
+        ego[state] = {"frames": int(keep.sum()), **scores, **_where(sub)}
+    out = {
         **_where(placed),
         "unmatched": unmatched_split(placed, cfg.gate_m),
         "ego_state": ego,
     }
+    return out if tracked else {"detection": _counted(placed), **out}
 
 
 def _counted(placed: _Placed) -> dict:

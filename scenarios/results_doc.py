@@ -246,7 +246,16 @@ def results_markdown(
     run_dirs: list[Path], bench_files: list[Path], command: str, now: datetime | None = None
 ) -> str:
     """The whole page. Raises ResultsError naming the first unreadable input."""
-    summaries = [load_summary(d) for d in run_dirs]
+    return results_page([load_summary(d) for d in run_dirs], bench_files, command, now)
+
+
+def results_page(
+    summaries: list[dict[str, Any]],
+    bench_files: list[Path],
+    command: str,
+    now: datetime | None = None,
+) -> str:
+    """The whole page from loaded suite summaries (`load_summary`)."""
     benches = [(Path(p), load_bench(p)) for p in bench_files]
     commit, dirty = git_commit()
     when = (now or datetime.now(UTC)).strftime("%Y-%m-%d %H:%M UTC")

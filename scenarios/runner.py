@@ -29,7 +29,7 @@ from estimator.progress import track
 from estimator.recording import iter_frames, read_can_csv, read_timestamps_csv
 from estimator.surround.analyzer import SurroundAnalyzer
 from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS, DetectorConfig
-from estimator.surround.plugin import check_detector, make_surround
+from estimator.surround.plugin import check_detector, check_pixel_model, make_surround
 from scenarios import visualize as viz
 from scenarios.config import Scenario
 from scenarios.detection_metrics import (
@@ -38,7 +38,6 @@ from scenarios.detection_metrics import (
     GtVehicle,
     MetricsConfig,
     breakdown,
-    candidate_breakdown,
     evaluate,
     motion_class,
 )
@@ -158,8 +157,7 @@ def run_scenario(
         raise ValueError(f"road_mask must be 'gt' or None, got {road_mask!r}")
     if vehicle_mask not in (None, "gt"):
         raise ValueError(f"vehicle_mask must be 'gt' or None, got {vehicle_mask!r}")
-    if pixel_model is not None and not Path(pixel_model).is_file():
-        raise ValueError(f"pixel classifier {pixel_model}: no such file")
+    check_pixel_model(pixel_model, detector)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     drive_dir = Path(drive_dir) if drive_dir is not None else out_dir / "drive"
@@ -291,7 +289,7 @@ def run_scenario(
         "track_detection": trk["track_detection"],
         "track_localization": trk["track_localization"],
         "surround": {
-            "candidates": candidate_breakdown(eval_cand, mcfg),
+            "candidates": breakdown(eval_cand, mcfg, tracked=False),
             "detections": breakdown(eval_det, mcfg),
             **trk["surround"],
             **({"segmentation": audit.result()} if audit is not None else {}),

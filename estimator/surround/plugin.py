@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -38,6 +39,22 @@ def check_detector(name: str) -> str:
         f"unknown detector {name!r}; choose one of {', '.join(DETECTOR_METHODS)} or a plug-in "
         "package.module:ClassName"
     )
+
+
+def check_pixel_model(path: str | Path | None, detector: str) -> None:
+    """A classifier file for the "learned" detector (None: the built-in one): ValueError,
+    before any work, for a file given with another detector or one that cannot be loaded
+    (missing, or not a model `PixelClassifier` reads)."""
+    if path is None:
+        return
+    if detector != "learned":
+        raise ValueError(f"--pixel-model is for --detector learned, not {detector!r}")
+    from estimator.surround.pixel_classifier import PixelClassifier
+
+    try:
+        PixelClassifier.load(path)
+    except FileNotFoundError as e:
+        raise ValueError(str(e)) from e
 
 
 def make_surround(

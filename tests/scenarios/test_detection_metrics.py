@@ -18,7 +18,6 @@ from scenarios.detection_metrics import (
     box_footprint,
     box_iou_xywh,
     breakdown,
-    candidate_breakdown,
     evaluate,
     hypotheses_from_tracks,
     motion_class,
@@ -415,7 +414,7 @@ def test_candidates_are_counted_without_ids_by_band_and_ego_state():
         # stopped: ahead missed, no candidate
         EvalFrame([ahead], [], ego_moving=False),
     ]
-    c = candidate_breakdown(frames)
+    c = breakdown(frames, tracked=False)
     assert c["detection"] == {
         "recall": 0.6, "precision": 0.6, "gt_count": 5, "matched": 3, "hyp_count": 5,
     }  # fmt: skip

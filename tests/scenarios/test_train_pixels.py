@@ -109,3 +109,18 @@ def test_a_bad_pixel_model_is_refused_before_any_work(tmp_path):
         )
         assert res.exit_code == 2 and message in res.output, res.output
     assert not (tmp_path / "o").exists()
+
+
+def test_run_scenario_checks_the_pixel_model_as_the_cli_does(tmp_path):
+    """The API refuses what the CLI refuses, before rendering: a model with another
+    detector, and a missing file."""
+    from estimator.surround.pixel_classifier import BUILTIN_MODEL
+    from scenarios.config import load_scenario
+    from scenarios.runner import run_scenario
+
+    sc = load_scenario("highway-omni-near")
+    with pytest.raises(ValueError, match="--pixel-model is for --detector learned"):
+        run_scenario(sc, tmp_path / "a", detector="hypotheses", pixel_model=BUILTIN_MODEL)
+    with pytest.raises(ValueError, match="no such file"):
+        run_scenario(sc, tmp_path / "b", detector="learned", pixel_model=tmp_path / "x.npz")
+    assert not (tmp_path / "a" / "drive").exists() and not (tmp_path / "b" / "drive").exists()
