@@ -116,8 +116,9 @@ def sector(bearing_deg: float) -> str:
 # ------------------------------------------------------------------ inputs
 @dataclass(frozen=True)
 class GtVehicle:
-    """A ground-truth vehicle: id and footprint (4, 2) [m] in the ego road frame, and its
-    motion relative to the ego car (one of `MOTION_CLASSES`, "" if unknown).
+    """A ground-truth vehicle: id and footprint (4, 2) [m] in the ego road frame, its
+    motion relative to the ego car (one of `MOTION_CLASSES`, "" if unknown) and its
+    velocity over the ground in the ego road frame's axes (2,) [m/s] (NaN if unknown).
 
     The corners go around a convex polygon (either direction).
     """
@@ -125,12 +126,17 @@ class GtVehicle:
     id: int
     footprint_xy: np.ndarray
     motion: str = ""
+    velocity_xy: np.ndarray = field(default_factory=lambda: np.full(2, NAN))
 
     def __post_init__(self) -> None:
         fp = np.asarray(self.footprint_xy, dtype=float)
         if fp.shape != (4, 2) or not np.all(np.isfinite(fp)):
             raise ValueError(f"GtVehicle {self.id}: footprint_xy must be finite (4, 2), got {fp}")
         object.__setattr__(self, "footprint_xy", fp)
+        v = np.asarray(self.velocity_xy, dtype=float)
+        if v.shape != (2,):
+            raise ValueError(f"GtVehicle {self.id}: velocity_xy must have shape (2,), got {v}")
+        object.__setattr__(self, "velocity_xy", v)
 
     @classmethod
     def from_box(
@@ -193,7 +199,11 @@ class EvalFrame:
     [m] (NaN where it has no box), empty when none has one; optionally each hypothesis's
     box (x, y [m], yaw [rad], length, width [m]; NaN where it has none), empty when none
     has one: ``hyp_box_xywh`` (H, 4) its plan-view extent (`plan_box_xywh`), NaN rows
-    where none."""
+    where none, ``hyp_yaw`` (H,) its yaw [rad]; optionally each hypothesis's state, empty
+    when none has one: ``velocities`` (vx, vy) [m/s] over the ground in the ego road
+    frame's axes, ``covariances`` (var_x [m²], cov_xy [m²], var_y [m²], var_vx, cov_vxvy,
+    var_vy [m²/s²]) of its position and velocity (the columns of ``tracks.csv``), NaN
+    where it has none: ``hyp_velocity`` (H, 2), ``hyp_cov`` (H, 6)."""
 
     gt: Sequence[GtVehicle]
     hypotheses: Sequence[tuple[int, float, float]] = ()
@@ -201,10 +211,15 @@ class EvalFrame:
     ego_moving: bool = True
     centres: Sequence[tuple[float, float]] = ()
     boxes: Sequence[tuple[float, float, float, float, float]] = ()
+    velocities: Sequence[tuple[float, float]] = ()
+    covariances: Sequence[tuple[float, ...]] = ()
     hyp_ids: np.ndarray = field(init=False, repr=False)
     hyp_xy: np.ndarray = field(init=False, repr=False)
     hyp_centre_xy: np.ndarray = field(init=False, repr=False)
     hyp_box_xywh: np.ndarray = field(init=False, repr=False)
+    hyp_yaw: np.ndarray = field(init=False, repr=False)
+    hyp_velocity: np.ndarray = field(init=False, repr=False)
+    hyp_cov: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.gt = list(self.gt)
@@ -221,14 +236,27 @@ class EvalFrame:
         if len(b) not in (0, len(h)):
             raise ValueError(f"frame t={self.t_s}: {len(b)} boxes for {len(h)} hypotheses")
         self.hyp_box_xywh = np.full((len(h), 4), NAN)
+        self.hyp_yaw = np.full(len(h), NAN)
         for i, box in enumerate(b):
             if np.all(np.isfinite(box)):
                 x, y, yaw, length, width = box
                 self.hyp_box_xywh[i] = plan_box_xywh(box_footprint(x, y, length, width, yaw))
+                self.hyp_yaw[i] = yaw
+        self.hyp_velocity = self._per_hypothesis("velocities", self.velocities, 2)
+        self.hyp_cov = self._per_hypothesis("covariances", self.covariances, 6)
         gt_ids = [g.id for g in self.gt]
         for name, ids in (("ground-truth", gt_ids), ("hypothesis", self.hyp_ids.tolist())):
             if len(set(ids)) != len(ids):
                 raise ValueError(f"frame t={self.t_s}: duplicate {name} ids {sorted(ids)}")
+
+    def _per_hypothesis(self, name: str, rows: Sequence, width: int) -> np.ndarray:
+        """(H, width) of rows given per hypothesis, all NaN when none is given."""
+        a = np.array(list(rows), float).reshape(-1, width)
+        if len(a) not in (0, len(self.hyp_ids)):
+            raise ValueError(
+                f"frame t={self.t_s}: {len(a)} {name} for {len(self.hyp_ids)} hypotheses"
+            )
+        return a if len(a) else np.full((len(self.hyp_ids), width), NAN)
 
     @property
     def gt_ids(self) -> np.ndarray:
@@ -345,7 +373,7 @@ def _motmetrics(frames: Sequence[EvalFrame], dists: Sequence[np.ndarray], gate: 
     return {n: summary[n].iloc[0] for n in names}
 
 
-def _match_all(frames: Sequence[EvalFrame], cfg: MetricsConfig):
+def match_frames(frames: Sequence[EvalFrame], cfg: MetricsConfig):
     """Per-frame distance matrices and detection matches (frame, gt row, hyp col)."""
     dists = [distance_matrix(f) for f in frames]
     matches = [(k, r, c) for k, D in enumerate(dists) for r, c in _gated_assignment(D, cfg.gate_m)]
@@ -365,7 +393,7 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
     """
     cfg = config if config is not None else MetricsConfig()
     frames = list(frames)
-    dists, matches = _match_all(frames, cfg)
+    dists, matches = match_frames(frames, cfg)
     gt_count = sum(len(f.gt) for f in frames)
     hyp_count = sum(len(f.hyp_ids) for f in frames)
     matched = len(matches)
@@ -503,7 +531,7 @@ class _Placed:
 
     @staticmethod
     def of(frames: Sequence[EvalFrame], cfg: MetricsConfig) -> _Placed:
-        dists, matches = _match_all(frames, cfg)
+        dists, matches = match_frames(frames, cfg)
         gt_hit = {(k, r) for k, r, _ in matches}
         hyp_hit = {(k, c) for k, _, c in matches}
         cam = np.asarray(cfg.camera_xy, float)

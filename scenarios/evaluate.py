@@ -40,6 +40,7 @@ from scenarios.detection_metrics import (
     recall_polar,
 )
 from scenarios.metrics import STATE_COLS, ego_metrics, ego_series
+from scenarios.track_state import track_state
 
 EGOMOTION_REQUIRED = ("frame", "speed_mps", "yaw_rate_dps")
 TRACKS_REQUIRED = ("frame", "track_id", "x_m", "y_m")
@@ -124,12 +125,23 @@ def read_egomotion_input(path: Path, n_frames: int) -> dict[str, np.ndarray]:
 
 
 TRACK_BOX_COLUMNS = ("box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m")
+TRACK_STATE_COLUMNS = (  # velocity over the ground [m/s] and covariances [m²], [m²/s²]
+    "vx_mps",
+    "vy_mps",
+    "var_x_m2",
+    "cov_xy_m2",
+    "var_y_m2",
+    "var_vx_m2ps2",
+    "cov_vxvy_m2ps2",
+    "var_vy_m2ps2",
+)
 
 
 def read_tracks_input(path: Path, n_frames: int) -> dict[int, list[tuple]]:
-    """{frame: [(track id, x, y, box x, box y, box yaw, box length, box width)]} of a
-    track file, checked ([m], [rad]; a box value NaN when the file has not its column or
-    the row leaves it empty)."""
+    """{frame: [(track id, x, y, box x, box y, box yaw, box length, box width, vx, vy,
+    var_x, cov_xy, var_y, var_vx, cov_vxvy, var_vy)]} of a track file, checked ([m],
+    [rad], [m/s], [m²], [m²/s²]; a box or state value NaN when the file has not its column
+    or the row leaves it empty)."""
     path = Path(path)
     rows = _rows(path, TRACKS_REQUIRED)
     out: dict[int, list] = defaultdict(list)
@@ -152,7 +164,7 @@ def read_tracks_input(path: Path, n_frames: int) -> dict[int, list[tuple]]:
         x, y = _number(path, line, r, "x_m"), _number(path, line, r, "y_m")
         box = tuple(
             _number(path, line, r, c, allow_nan=True) if c in r else math.nan
-            for c in TRACK_BOX_COLUMNS
+            for c in TRACK_BOX_COLUMNS + TRACK_STATE_COLUMNS
         )
         out[k].append((tid, x, y, *box))
     return dict(out)
@@ -213,6 +225,8 @@ def track_frames(tracks: dict[int, list], gt: list[dict], max_range_m: float) ->
                 speed is None or speed > EGO_MOVING_MPS,
                 [r[3:5] for r in rows],
                 [r[3:8] for r in rows],
+                [r[8:10] for r in rows],
+                [r[10:16] for r in rows],
             )
         )
     return frames
@@ -220,8 +234,8 @@ def track_frames(tracks: dict[int, list], gt: list[dict], max_range_m: float) ->
 
 def track_sections(frames: list[EvalFrame], cfg: MetricsConfig, max_range_m: float) -> dict:
     """{"tracking", "track_detection" (recall, precision of the tracks),
-    "track_localization", "surround": {"tracks", "recall_polar", "gt_vehicles"},
-    "nan_reasons"} of the tracks' frames."""
+    "track_localization", "surround": {"tracks", "track_state", "recall_polar",
+    "gt_vehicles"}, "nan_reasons"} of the tracks' frames."""
     m = evaluate(frames, cfg)
     rings = np.arange(0.0, max_range_m + POLAR_RING_M - 1e-9, POLAR_RING_M)
     sectors = np.arange(-180.0, 180.0 + 1e-9, POLAR_SECTOR_DEG)
@@ -231,6 +245,7 @@ def track_sections(frames: list[EvalFrame], cfg: MetricsConfig, max_range_m: flo
         "track_localization": m["localization"],
         "surround": {
             "tracks": breakdown(frames, cfg),
+            "track_state": track_state(frames, cfg),
             "recall_polar": recall_polar(frames, rings.tolist(), sectors.tolist(), cfg),
             "gt_vehicles": len({g.id for f in frames for g in f.gt}),
         },

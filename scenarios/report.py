@@ -77,6 +77,43 @@ def _stage_rows(surround: dict) -> dict:
     return rows
 
 
+STATE_COLUMNS = (
+    "pairs",
+    "velocity median [m/s]",
+    "velocity p90 [m/s]",
+    "heading median [deg]",
+    "position NEES mean",
+    "position NEES within bound",
+    "velocity NEES mean",
+    "velocity NEES within bound",
+)
+
+
+def _state_rows(state: dict) -> dict:
+    """`STATE_COLUMNS` of `scenarios.track_state.track_state`: all pairs, then by range."""
+
+    def row(s: dict) -> dict:
+        v, p, n = s["velocity"], s["position_nees"], s["velocity_nees"]
+        return dict(
+            zip(
+                STATE_COLUMNS,
+                (
+                    v["pairs"],
+                    v["median_error_mps"],
+                    v["p90_error_mps"],
+                    s["heading"]["median_error_deg"],
+                    p["mean"],
+                    p["within_95"],
+                    n["mean"],
+                    n["within_95"],
+                ),
+                strict=True,
+            )
+        )
+
+    return {"all": row(state), **{b: row(s) for b, s in state["range_bands"].items()}}
+
+
 def _surround_section(surround: dict) -> str:
     """Where the tracks fail (`scenarios.detection_metrics.breakdown`): by range band,
     bearing sector, the vehicles' motion and the ego car's state."""
@@ -134,6 +171,15 @@ def _surround_section(surround: dict) -> str:
             + "<p>the mask's share of the vehicles' pixels (every frame); the detector's "
             "candidates (before the tracker decides which are vehicles); the reported "
             "tracks</p>"
+        )
+    state = surround.get("track_state")
+    if isinstance(state, dict):
+        parts.append(
+            "<h3>the tracks' state against the truth</h3>"
+            + _rows_table(_state_rows(state), STATE_COLUMNS)
+            + f"<p>of the matched tracks: velocity over the ground, box heading (modulo 180 "
+            f"deg), and the NEES of position and velocity (honest covariances: mean 2, a "
+            f"share 0.95 within {_fmt(state.get('nees_bound'))}; more: overconfident)</p>"
         )
     seg = surround.get("segmentation")
     if isinstance(seg, dict):

@@ -83,7 +83,8 @@ def vehicle_footprint(gt_frame: dict, vehicle: dict) -> np.ndarray:
 
 def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicle], np.ndarray]:
     """Vehicles visible (>= VISIBLE_PX_MIN px) within max_range_m, as footprints in the
-    ego road frame with their motion relative to the ego car (`motion_class`); also
+    ego road frame with their motion relative to the ego car (`motion_class`) and their
+    velocity over the ground in its axes (speed along the heading); also
     (N, 2) all their footprint centres (for drawing)."""
     ego = gt_frame["ego"]
     out, centres = [], []
@@ -99,7 +100,12 @@ def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicl
             if "speed_mps" in v and "speed_mps" in ego
             else ""
         )
-        out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion))
+        velocity = np.full(2, np.nan)  # over the ground, ego road axes [m/s]
+        if "speed_mps" in v and "yaw_rad" in v:
+            R, _ = ego_road_frame(gt_frame)
+            heading = np.array([np.cos(v["yaw_rad"]), np.sin(v["yaw_rad"])])
+            velocity = R.T @ (v["speed_mps"] * heading)
+        out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion, velocity))
     return out, np.array(centres).reshape(-1, 2)
 
 

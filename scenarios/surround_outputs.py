@@ -40,13 +40,14 @@ def box_centres(boxes: list) -> list[tuple[float, float]]:
 
 def frame_track_rows(k: int, t_s: float, tracks: list, surround) -> list[tuple]:
     """One `TRACKS_CSV_COLUMNS` row per track of frame k at time t_s [s]; surround: the
-    analyzer whose `track_box` gives a track's box."""
+    analyzer whose `track_box` and `track_position_cov` give a track's box and the
+    covariance of its point."""
     rows = []
     for tr in tracks:
-        P = tr.P
+        P, C = tr.P, surround.track_position_cov(tr)
         rows.append(
             (k, t_s, tr.id, *(float(v) for v in tr.x[:4]))
-            + (float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
+            + (float(C[0, 0]), float(C[0, 1]), float(C[1, 1]))
             + (float(P[2, 2]), float(P[2, 3]), float(P[3, 3]))
             + box_fields(surround.track_box(tr))
         )

@@ -296,6 +296,15 @@ class SurroundAnalyzer:
         H = swept_measurement(track.x[None], np.array([swept_s]))[0, 0]
         return track.x[:2] - H @ track.x
 
+    def track_position_cov(self, track: Track) -> np.ndarray:
+        """(2, 2) [m²] covariance of a track's reported point: the filter's, plus one
+        measurement's (`Tracker.measurement_cov` at the point, bearing-only where its last
+        detection's ground was hidden). The detector's error persists from frame to frame
+        (the same part of the vehicle is its nearest visible point for many frames), which
+        the filter, treating it as white, averages away; one frame's error is its bound."""
+        hidden = bool(getattr(track.extra, "hidden", False))
+        return track.P[:2, :2] + self.tracker.measurement_cov(track.x[:2], hidden)
+
     def track_box(self, track: Track) -> Box | None:
         """The vehicle box of a track (its latest fitted box, kept at the same offset from
         the tracked point); None before the track had one."""

@@ -149,3 +149,7 @@ class PluginSurround:
     def track_box(self, track: PluginTrack) -> Box | None:
         """The box the plug-in gave for the track this frame (None: none)."""
         return self._box.get(track.id)
+
+    def track_position_cov(self, track: PluginTrack) -> np.ndarray:
+        """(2, 2) NaN: a plug-in gives no covariance."""
+        return track.P[:2, :2]

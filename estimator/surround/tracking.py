@@ -456,6 +456,12 @@ class Tracker:
         return [t for t in self._tracks if t.confirmed]
 
     # -------------------------------------------------------------- model
+    def measurement_cov(self, z: np.ndarray, bearing_only: bool = False) -> np.ndarray:
+        """(2, 2) R [m²] of one detection at z (2,) [m]: `_meas_cov`, or `_hidden_cov`
+        for a detection whose ground point is hidden."""
+        z = np.asarray(z, float)
+        return self._hidden_cov(z) if bearing_only else self._meas_cov(z)
+
     def _meas_cov(self, z: np.ndarray) -> np.ndarray:
         """(2, 2) R for a detection at z: σ(z)² I, σ = σ0 + σ1 |z|."""
         sigma = self.config.meas_sigma_m + self.config.meas_sigma_per_m * float(np.hypot(*z))
@@ -627,9 +633,7 @@ class Tracker:
         # 2. gated Mahalanobis costs, all pairs at once; d2_body: the same against the
         # points of each track's extended body (offset_m along x), for the pairs the
         # point-to-point assignment leaves
-        Rs = [
-            self._hidden_cov(z) if b else self._meas_cov(z) for z, b in zip(z_all, bo, strict=True)
-        ]
+        Rs = [self.measurement_cov(z, b) for z, b in zip(z_all, bo, strict=True)]
         n_trk = len(self._tracks)
         d2 = np.full((n_trk, n_det), np.inf)
         d2_body = np.full((n_trk, n_det), np.inf)

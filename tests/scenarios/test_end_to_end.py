@@ -69,6 +69,12 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert 0.0 < cand["detection"]["recall"] <= 1.0
     assert "where vehicles are lost, stage by stage" in (out / "report.html").read_text()
     assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
+    state = sur["track_state"]  # the matched tracks' velocity, heading and NEES
+    assert state["pairs"] == m["track_detection"]["matched"] > 0
+    assert state["velocity"]["pairs"] == state["position_nees"]["pairs"] == state["pairs"]
+    assert 0.0 <= state["velocity"]["median_error_mps"] < 10.0
+    assert state["position_nees"]["mean"] > 0 and 0.0 <= state["heading"]["median_error_deg"] <= 90
+    assert "the tracks' state against the truth" in (out / "report.html").read_text()
     assert "by motion relative to the ego car" in (out / "report.html").read_text()
     assert "what the unmatched track points are" in (out / "report.html").read_text()
     seg = sur["segmentation"]  # the motion mask against the true vehicle pixels

@@ -187,6 +187,26 @@ def test_vehicle_box_is_carried_with_its_track(omni):
     assert sa.track_box(tr) is None
 
 
+def test_a_tracks_point_covariance_keeps_one_measurements_error(omni):
+    """The reported covariance of a track's point: the filter's, plus one detection's R at
+    the point (its error persists from frame to frame); along the bearing for a track whose
+    last detection was hidden."""
+    sa = SurroundAnalyzer(*omni, surround=OWN_POINT)
+    sf = _run(sa, [[_det(12.0 + 0.1 * k, 3.0)] for k in range(15)])
+    (tr,) = sf.tracks
+    C = sa.track_position_cov(tr)
+    R = sa.tracker.measurement_cov(tr.x[:2])
+    np.testing.assert_allclose(C, tr.P[:2, :2] + R)
+    cfg = sa.tracker.config
+    sigma = cfg.meas_sigma_m + cfg.meas_sigma_per_m * float(np.hypot(*tr.x[:2]))
+    np.testing.assert_allclose(R, sigma**2 * np.eye(2))
+    assert np.linalg.eigvalsh(C).min() > np.linalg.eigvalsh(tr.P[:2, :2]).max()
+    tr.extra = _det(2.0, 1.0, hidden=True)
+    u = tr.x[:2] / np.hypot(*tr.x[:2])
+    along = u @ sa.track_position_cov(tr) @ u - u @ tr.P[:2, :2] @ u
+    assert along == pytest.approx(cfg.hidden_range_sigma_m**2)
+
+
 def test_box_heading_from_the_track(omni):
     """A car driving at 0.6 rad to the ego car's heading, seen end-on-ish, whose single-frame
     boxes are placed across its true heading: once its track knows its velocity (12 m/s over

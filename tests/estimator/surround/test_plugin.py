@@ -60,6 +60,7 @@ def test_plugin_tracks_are_read_as_the_analyzers(plugins):
     assert (a.id, *a.x[:3]) == (3, 15.0, 0.0, 1.0) and math.isnan(a.x[3])
     assert len(a.history) == 3 and np.isnan(a.P).all()
     assert sur.track_box(a).x_m == pytest.approx(17.3) and sur.track_box(b) is None
+    assert np.isnan(sur.track_position_cov(a)).all()  # a plug-in gives no covariance
     assert [(d.x_m, d.y_m) for d in sf.detection.detections] == [(15.0, 0.0), (-9.0, 3.5)]
     assert isinstance(make_surround("paper", cam, mount, DetectorConfig()), SurroundAnalyzer)
 
