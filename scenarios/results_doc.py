@@ -43,6 +43,16 @@ DETECTION_COLUMNS = (
     (_MOVING + "localization.median_error_m", "median position error [m]", "{:.2f}"),
     (_MOVING + "localization.centre_median_error_m", "median box-centre error [m]", "{:.2f}"),
     (
+        "surround.track_state.ego_state.moving.velocity.median_error_mps",
+        "median velocity error [m/s]",
+        "{:.2f}",
+    ),
+    (
+        "surround.track_state.ego_state.moving.position_nees.mean",
+        "position NEES (2: honest)",
+        "{:.1f}",
+    ),
+    (
         "surround.tracks.ego_state.stopped.detection.gt_count",
         "vehicle-frames, ego stopped",
         "{:.0f}",
@@ -174,14 +184,15 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
     # every job that evaluated vehicles (detection runs on each estimator's compensation)
     det = [j for j in jobs if (j.get("metrics") or {}).get("detection.gt_count")]
     if det:
-        cols = DETECTION_COLUMNS
+        # a column that no job of the run has (a figure measured since) is left out
+        cols = [c for c in DETECTION_COLUMNS if any(c[0] in _metrics(j) for j in det)]
         rows = [
             keys(j)
             + [j.get("detector", DEFAULT_DETECTOR)]
             + [_fmt(_metrics(j).get(k), f) for k, _, f in cols]
             for j in det
         ]
-        heads = key_heads + ["detector"] + [h for _, h, _ in DETECTION_COLUMNS]
+        heads = key_heads + ["detector"] + [h for _, h, _ in cols]
         lines += [
             "",
             "Surround: the vehicle tracks over the frames where the ego car moves (the "

@@ -63,8 +63,10 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     assert "commit `abc123`" in page and "check-x-1" in page
     assert "check suite" in page
     assert "| merge-omni-far | omni-far | direct | 3 | 150 | 1.23 | 8.00 | 0.346 | 0.055 |" in page
-    # the tracks over the frames where the ego car moves, then the detections' own recall
-    assert "| 140 | 0.91 | – | 0.88 | – | – | – | – | 9 | 0.93 |" in page
+    # the tracks over the frames where the ego car moves, then the detections' own recall;
+    # a figure no job has is no column (HOTA, NaN in the one job that has it, stays)
+    assert "| 140 | 0.91 | 0.88 | – | 9 | 0.93 |" in page
+    assert "| HOTA |" in page and "IDF1" not in page and "position NEES" not in page
     assert "1 jobs did not finish" in page and "boom" in page
     assert "| estimate | 12.5 | 14.0 | 80.00 | 12 | 40 |" in page
     detect = tmp_path / "detect.json"
@@ -81,6 +83,20 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     page = results_markdown([run], [detect, learned], "omnibench results run")
     assert "| detect (dense-exit-omni-near) | 20.0 |" in page  # the default: no name
     assert "| detect (dense-exit-omni-near, learned) | 40.0 |" in page
+
+
+def test_the_tracks_state_is_a_column_where_a_job_has_it(tmp_path):
+    run = _summary(tmp_path)
+    summary = json.loads((run / "summary.json").read_text())
+    state = "surround.track_state.ego_state.moving."
+    summary["jobs"][0]["metrics"] |= {
+        state + "velocity.median_error_mps": 1.234,
+        state + "position_nees.mean": 2.46,
+    }
+    (run / "summary.json").write_text(json.dumps(summary))
+    page = results_markdown([run], [], "omnibench results run")
+    assert "| median velocity error [m/s] | position NEES (2: honest) |" in page
+    assert "| 140 | 0.91 | 0.88 | – | 1.23 | 2.5 | 9 | 0.93 |" in page
 
 
 def test_tuning_suite_is_said_to_be_not_held_out(tmp_path):
@@ -139,7 +155,7 @@ def test_a_record_regenerates_the_same_page_and_keeps_only_what_it_reads(tmp_pat
     now = datetime(2026, 12, 7, tzinfo=UTC)
     from_run = results_markdown([run], [], "omnibench results x", now)
     assert results_markdown([path], [], "omnibench results x", now) == from_run
-    assert "| 140 | 0.91 | – | 0.88 |" in from_run
+    assert "| 140 | 0.91 | 0.88 |" in from_run
 
 
 def test_a_json_file_that_is_no_record_is_refused_naming_it(tmp_path):
