@@ -40,6 +40,7 @@ from scenarios.detection_metrics import (
     recall_polar,
 )
 from scenarios.metrics import STATE_COLS, ego_metrics, ego_series
+from scenarios.surround_outputs import TRACK_BOX_COLUMNS, TRACK_STATE_COLUMNS
 from scenarios.track_state import track_state
 
 EGOMOTION_REQUIRED = ("frame", "speed_mps", "yaw_rate_dps")
@@ -122,19 +123,6 @@ def read_egomotion_input(path: Path, n_frames: int) -> dict[str, np.ndarray]:
     arrays = {c: np.asarray(v, float)[order] for c, v in out.items()}
     arrays["frame"] = arrays["frame"].astype(int)
     return arrays
-
-
-TRACK_BOX_COLUMNS = ("box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m")
-TRACK_STATE_COLUMNS = (  # velocity over the ground [m/s] and covariances [m²], [m²/s²]
-    "vx_mps",
-    "vy_mps",
-    "var_x_m2",
-    "cov_xy_m2",
-    "var_y_m2",
-    "var_vx_m2ps2",
-    "cov_vxvy_m2ps2",
-    "var_vy_m2ps2",
-)
 
 
 def read_tracks_input(path: Path, n_frames: int) -> dict[int, list[tuple]]:

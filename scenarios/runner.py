@@ -87,6 +87,7 @@ def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicl
     velocity over the ground in its axes (speed along the heading); also
     (N, 2) all their footprint centres (for drawing)."""
     ego = gt_frame["ego"]
+    R, _ = ego_road_frame(gt_frame)
     out, centres = [], []
     for v in gt_frame["vehicles"]:
         foot = vehicle_footprint(gt_frame, v)
@@ -102,7 +103,6 @@ def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicl
         )
         velocity = np.full(2, np.nan)  # over the ground, ego road axes [m/s]
         if "speed_mps" in v and "yaw_rad" in v:
-            R, _ = ego_road_frame(gt_frame)
             heading = np.array([np.cos(v["yaw_rad"]), np.sin(v["yaw_rad"])])
             velocity = R.T @ (v["speed_mps"] * heading)
         out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion, velocity))

@@ -17,12 +17,16 @@ import numpy as np
 from estimator.fileio import atomic_write, write_png, write_text
 from scenarios import visualize as viz
 
-# tracks.csv: position [m] and ground velocity [m/s] in the ego road frame, and their
-# covariances (the Kalman filter's P: position [m^2], velocity [(m/s)^2])
-TRACKS_CSV_COLUMNS = (
-    "frame", "t_s", "track_id", "x_m", "y_m", "vx_mps", "vy_mps",
+# tracks.csv: position [m] and ground velocity [m/s] in the ego road frame, their
+# covariances (position [m^2]: `SurroundAnalyzer.track_position_cov`; velocity [(m/s)^2]:
+# the Kalman filter's) and the box (centre [m], yaw [rad], length, width [m])
+TRACK_STATE_COLUMNS = (
+    "vx_mps", "vy_mps",
     "var_x_m2", "cov_xy_m2", "var_y_m2", "var_vx_m2ps2", "cov_vxvy_m2ps2", "var_vy_m2ps2",
-    "box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m",
+)  # fmt: skip
+TRACK_BOX_COLUMNS = ("box_x_m", "box_y_m", "box_yaw_rad", "box_length_m", "box_width_m")
+TRACKS_CSV_COLUMNS = (
+    "frame", "t_s", "track_id", "x_m", "y_m", *TRACK_STATE_COLUMNS, *TRACK_BOX_COLUMNS
 )  # fmt: skip
 
 

@@ -83,10 +83,17 @@ def pair_errors(frames: Sequence[EvalFrame], config: MetricsConfig | None = None
     """(P, 5) per matched pair: range [m] of the vehicle's nearest footprint point,
     velocity error [m/s], heading error [deg], position NEES, velocity NEES (NaN where
     the track or the truth lacks what it needs)."""
+    return _pairs(list(frames), config)[0]
+
+
+def _pairs(frames: list[EvalFrame], config: MetricsConfig | None) -> tuple[np.ndarray, np.ndarray]:
+    """(`pair_errors` (P, 5), whether the ego car moved in each pair's frame (P,) bool),
+    the frames matched once."""
     cfg = config if config is not None else MetricsConfig()
     _, matches = match_frames(frames, cfg)
     cam = np.asarray(cfg.camera_xy, float)
     out = np.full((len(matches), 5), NAN)
+    moving = np.array([frames[k].ego_moving for k, _, _ in matches], bool)
     for i, (k, r, c) in enumerate(matches):
         f, g = frames[k], frames[k].gt[r]
         near = nearest_footprint_point(g.footprint_xy, cam)
@@ -97,7 +104,7 @@ def pair_errors(frames: Sequence[EvalFrame], config: MetricsConfig | None = None
             out[i, 2] = axis_error_deg(float(f.hyp_yaw[c]), long_axis_rad(g.footprint_xy))
         out[i, 3] = nees(f.hyp_xy[c] - near, _cov2(f.hyp_cov[c, :3]))
         out[i, 4] = nees(dv, _cov2(f.hyp_cov[c, 3:]))
-    return out
+    return out, moving
 
 
 def _figures(e: np.ndarray) -> dict:
@@ -135,13 +142,9 @@ def track_state(frames: Sequence[EvalFrame], config: MetricsConfig | None = None
     """{"pairs", "velocity", "heading", "position_nees", "velocity_nees", "nees_bound",
     "range_bands": {band: the same four}, "ego_state": {"moving", "stopped": the same
     four}} of the matched pairs of frames (module docstring)."""
-    frames = list(frames)
-    e = pair_errors(frames, config)
-    bands = band_labels(np.column_stack([e[:, 0], np.zeros(len(e))]))
-    ego = {}
-    for state, moving in (("moving", True), ("stopped", False)):
-        sub = [f for f in frames if f.ego_moving == moving]
-        ego[state] = _figures(pair_errors(sub, config))
+    e, moving = _pairs(list(frames), config)
+    bands = band_labels(np.column_stack([e[:, 0], np.zeros(len(e))]))  # (range, 0): its band
+    ego = {"moving": _figures(e[moving]), "stopped": _figures(e[~moving])}
     return {
         "pairs": len(e),
         **_figures(e),
