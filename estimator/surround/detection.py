@@ -348,12 +348,29 @@ def hypothesis_homography(
     rotation is the camera's without the car's yaw (the component of W along the
     road normal n), i.e. the mount's vibration only.
     """
-    R, D, K = homography_parts(np.asarray(x, float), K0, dt_s)
-    if lam < 1.0:
-        W = np.asarray(x, float)[3:6]
-        W_vib = W - (W @ n) * n
-        R = np.eye(3) - skew(W_vib) * dt_s
-    return R + lam * np.outer(D, K)
+    return hypothesis_homographies(x, K0, n, dt_s, (lam,))[lam]
+
+
+def hypothesis_homographies(
+    x: np.ndarray, K0: np.ndarray, n: np.ndarray, dt_s: float, lams: Sequence[float]
+) -> dict[float, np.ndarray]:
+    """`hypothesis_homography` (3, 3) for each lambda of ``lams``: eq. 4's parts
+    computed once for the step."""
+    x = np.asarray(x, float)
+    R, D, K = homography_parts(x, K0, dt_s)
+    DK = np.outer(D, K)
+    R_vib = None
+    out = {}
+    for lam in lams:
+        if lam < 1.0:
+            if R_vib is None:
+                W = x[3:6]
+                W_vib = W - (W @ n) * n
+                R_vib = np.eye(3) - skew(W_vib) * dt_s
+            out[lam] = R_vib + lam * DK
+        else:
+            out[lam] = R + lam * DK
+    return out
 
 
 class VehicleDetector:
@@ -539,10 +556,12 @@ class VehicleDetector:
         Hs: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         ok = self.road_s & self.valid_s
         paper = cfg.method == "paper"
-        for lam in (1.0,) if paper else self._lams:
+        lams = (1.0,) if paper else self._lams
+        per_step = [hypothesis_homographies(x, K0, n, dt, lams) for x, dt in steps]
+        for lam in lams:
             H = np.eye(3)
-            for x, dt in steps:
-                H = hypothesis_homography(x, K0, n, dt, lam) @ H
+            for Hk in per_step:
+                H = Hk[lam] @ H
             key = lam in (0.0, 1.0)
             mx, my = self.comp.maps_h(H, s, exact_horizon=key)
             Hs[lam] = (mx, my)  # kept for the full-resolution refinement
@@ -893,9 +912,11 @@ class VehicleDetector:
         E_sta = None
         for lam, w in warped.items():
             if lam >= 1.0:
-                d = (a - w) * okf
-                e = avg(d * d)
-                E_sta = e if E_sta is None else np.minimum(E_sta, e)
+                e = avg(_masked_sq(a, w, okf))
+                if E_sta is None:  # (a copy where e is kept: the minimum is taken in place)
+                    E_sta = e if keep is None else e.copy()
+                else:
+                    np.minimum(E_sta, e, out=E_sta)
                 if keep is not None:
                     keep.E[lam] = e
         G2 = avg(gradient_sq(a) * okf)
@@ -930,16 +951,15 @@ class VehicleDetector:
         for lam, w in warped.items():
             if lam >= 1.0:
                 continue
-            d = (a - w) * okf
-            sep = (warped[1.0] - w) * okf
-            S_j = avg(sep * sep)  # road against hypothesis j
-            E_j = avg(d * d)
+            S_j = avg(_masked_sq(warped[1.0], w, okf))  # road against hypothesis j
+            E_j = avg(_masked_sq(a, w, okf))
             if keep is not None:
                 keep.E[lam], keep.S[lam] = E_j, S_j
-            m_j = (E_sta - E_j) / (S_j + floor)
+            m_j = np.subtract(E_sta, E_j)
+            np.divide(m_j, S_j + floor, out=m_j)
             if lam > 0.0:  # decided only where its prediction and the road's differ
                 m_j[S_j < floor] = -1.0  # by more than the floor (noise, misregistration)
-            m = m_j if m is None else np.maximum(m, m_j)
+            m = m_j if m is None else np.maximum(m, m_j, out=m)
         m[~ok] = 0.0
         return m
 
@@ -995,10 +1015,11 @@ class VehicleDetector:
         aliased road marks) are dropped before the closing, so that they neither
         join a vehicle's blob nor move its nearest point.
         """
-        n, labels = cv2.connectedComponents((plan > 0).astype(np.uint8), connectivity=8)
+        seen = plan > 0
+        n, labels = cv2.connectedComponents(seen.view(np.uint8), connectivity=8)
         if n <= 1:
             return plan
-        nz = np.flatnonzero(labels)
+        nz = np.flatnonzero(seen)  # (on bool: numpy's fast path, ~10x that on integers)
         near, far, _ = self._label_extent(labels, n, nz)
         height = self.mount.height_m * (1.0 - near / np.maximum(far, 1e-6))
         keep = height >= self.cfg.min_height_m
@@ -1013,9 +1034,9 @@ class VehicleDetector:
         nearest cell as it is (no hidden-ground handling, no height test: the paper's)."""
         cfg = self.cfg
         # (areas, extents and boxes from the few cells of the blobs, not the whole plan view)
-        binary = (plan > 0).astype(np.uint8)
-        n, labels = cv2.connectedComponents(binary, connectivity=8)
-        cells = np.flatnonzero(binary)
+        seen = plan > 0
+        n, labels = cv2.connectedComponents(seen.view(np.uint8), connectivity=8)
+        cells = np.flatnonzero(seen)  # (on bool: numpy's fast path)
         cell_labels = labels.ravel()[cells]
         px_area = cfg.m_per_px**2
         keep = np.bincount(cell_labels, minlength=n) * px_area >= cfg.min_blob_m2
@@ -1110,6 +1131,15 @@ class VehicleDetector:
                 )
             )
         return out
+
+
+def _masked_sq(a: np.ndarray, b: np.ndarray, okf: np.ndarray) -> np.ndarray:
+    """(h, w) float32 ((a - b) okf)^2 for images a, b and a 0/1 mask okf (h, w), in one
+    buffer."""
+    d = np.subtract(a, b)
+    d *= okf
+    d *= d
+    return d
 
 
 def _warp_window(
