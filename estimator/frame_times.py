@@ -36,6 +36,22 @@ class FrameTimes:
         }
 
 
+def fastest_pass(passes: list[FrameTimes]) -> FrameTimes:
+    """Each frame's least wall and CPU time over passes that timed the same frames.
+
+    A pass over the same frames does the same work; what another process on the machine
+    takes from it only adds time, so a frame's fastest pass is its own cost (as
+    ``timeit`` takes the minimum of its repeats)."""
+    if not passes or len({len(p.wall_s) for p in passes}) != 1:
+        raise ValueError(
+            f"fastest_pass needs passes over the same frames, got {[len(p.wall_s) for p in passes]}"
+        )
+    out = FrameTimes()
+    out.wall_s = np.min([p.wall_s for p in passes], axis=0).tolist()
+    out.cpu_s = np.min([p.cpu_s for p in passes], axis=0).tolist()
+    return out
+
+
 class StageClock:
     """Seconds spent per named stage of the last frame (`omnibench bench render`, `bench
     detect`)."""

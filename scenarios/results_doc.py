@@ -211,6 +211,13 @@ def _detector_note(bench: dict[str, Any]) -> str:
     return "" if detector == DEFAULT_DETECTOR else f", {detector}"
 
 
+def _repeat_note(bench: dict[str, Any]) -> str:
+    """How a bench timed over several passes counts ("each frame's fastest of 3 passes"),
+    after a comma; "" for one pass."""
+    n = int(bench.get("repeat", 1))
+    return f", each frame's fastest of {n} passes" if n > 1 else ""
+
+
 def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
     rows, stages = [], []
     for path, b in benches:
@@ -220,7 +227,7 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
             what = (b.get("bench") or path.stem) + (
                 f" ({name}{', shadows' if r.get('shadows') else ''}, {r.get('face_px')}-px faces)"
                 if name
-                else f" ({b['scenario']}{_detector_note(b)})"  # the drive it timed
+                else f" ({b['scenario']}{_detector_note(b)}{_repeat_note(b)})"  # the drive timed
                 if b.get("scenario")
                 else ""
             )
@@ -240,6 +247,11 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
             if r.get("stages_ms"):
                 parts = ", ".join(f"{k} {v:.0f}" for k, v in r["stages_ms"].items())
                 stages.append(f"- {what}: {parts} ms (medians by stage)")
+            if len(r.get("passes", [])) > 1:  # every pass on its own, as timed
+                each = ", ".join(
+                    f"{q['ms_per_frame']:.1f} / {q['p90_ms_per_frame']:.1f}" for q in r["passes"]
+                )
+                stages.append(f"- {what}: each pass's median / p90 {each} ms")
     heads = [
         "benchmark",
         "median [ms/frame]",

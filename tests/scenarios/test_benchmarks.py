@@ -60,6 +60,15 @@ def test_bench_detect_reports_the_median_and_p90(tmp_path):
     stages = res["stages_ms"]  # where a frame's time goes
     assert list(stages) == ["warps", "score", "blobs", "refine", "track"]
     assert all(v >= 0 for v in stages.values()) and stages["score"] > 0
+    assert res["repeat"] == 1 and len(res["passes"]) == 1
+    # two passes: each frame's fastest, so neither figure exceeds either pass's
+    two = bench_detect(camera=camera, n_frames=4, cache_dir=tmp_path, repeat=2)
+    assert two["repeat"] == 2 and len(two["passes"]) == 2 and two["frames"] == 3
+    for p in two["passes"]:
+        assert two["ms_per_frame"] <= p["ms_per_frame"] <= p["p90_ms_per_frame"]
+        assert two["p90_ms_per_frame"] <= p["p90_ms_per_frame"]
+    with pytest.raises(ValueError, match="repeat must be 1 or more, got 0"):
+        bench_detect(camera=camera, n_frames=4, cache_dir=tmp_path, repeat=0)
     with pytest.raises(ValueError, match="dense-exit-omni-near has 225 frames"):
         bench_detect(camera=camera, n_frames=225, cache_dir=tmp_path)
     with pytest.raises(ValueError, match="n_frames must be 2..224, got 1"):

@@ -83,6 +83,16 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     page = results_markdown([run], [detect, learned], "omnibench results run")
     assert "| detect (dense-exit-omni-near) | 20.0 |" in page  # the default: no name
     assert "| detect (dense-exit-omni-near, learned) | 40.0 |" in page
+    # timed over passes: said so, and each pass as timed beside the fastest-pass figures
+    detect.write_text(
+        '{"bench": "detect", "scenario": "dense-exit-omni-near", "ms_per_frame": 17.0, '
+        '"p90_ms_per_frame": 19.0, "repeat": 2, "passes": [{"ms_per_frame": 18.0, '
+        '"p90_ms_per_frame": 21.0}, {"ms_per_frame": 17.5, "p90_ms_per_frame": 26.0}]}'
+    )
+    page = results_markdown([run], [detect], "omnibench results run")
+    what = "detect (dense-exit-omni-near, each frame's fastest of 2 passes)"
+    assert f"| {what} | 17.0 | 19.0 |" in page
+    assert f"- {what}: each pass's median / p90 18.0 / 21.0, 17.5 / 26.0 ms" in page
 
 
 def test_the_tracks_state_is_a_column_where_a_job_has_it(tmp_path):
