@@ -47,6 +47,7 @@ from typing import Any
 
 import motmetrics as mm
 import numpy as np
+from pycocotools.cocoeval import Params as CocoParams
 from scipy.optimize import linear_sum_assignment
 from trackeval.metrics import HOTA
 
@@ -75,6 +76,13 @@ CO_MOVING_MPS = 1.0  # [m/s] a vehicle within this of the ego car's velocity is 
 MOTION_CLASSES = ("co-moving", "overtaking", "overtaken", "oncoming", "crossing", "stationary")
 RANGE_BANDS_M = (0.0, 5.0, 10.0, 15.0, 25.0)  # [m] edges of the range bands of `breakdown`
 SECTORS = ("front", "left", "rear", "right")  # |bearing| < 45, 45..135 left, >= 135, right
+# the COCO benchmark's apparent sizes (pycocotools' area ranges [px]: small below 32^2,
+# medium to 96^2, large above): a vehicle's pixels in the full-resolution id image
+SIZE_CLASSES = {
+    name: (float(lo), float(hi))
+    for name, (lo, hi) in zip(CocoParams().areaRngLbl, CocoParams().areaRng, strict=True)
+    if name != "all"
+}
 UNMATCHED_KINDS = ("duplicate", "misplaced", "clutter")  # `unmatched_split`
 MISPLACED_M = 5.0  # [m] unmatched this near a vehicle: misplaced, farther: clutter; 1.5-10
 
@@ -117,8 +125,9 @@ def sector(bearing_deg: float) -> str:
 @dataclass(frozen=True)
 class GtVehicle:
     """A ground-truth vehicle: id and footprint (4, 2) [m] in the ego road frame, its
-    motion relative to the ego car (one of `MOTION_CLASSES`, "" if unknown) and its
-    velocity over the ground in the ego road frame's axes (2,) [m/s] (NaN if unknown).
+    motion relative to the ego car (one of `MOTION_CLASSES`, "" if unknown), its
+    velocity over the ground in the ego road frame's axes (2,) [m/s] (NaN if unknown) and
+    its apparent size, the pixels it covers in the frame's image [px] (NaN if unknown).
 
     The corners go around a convex polygon (either direction).
     """
@@ -127,6 +136,7 @@ class GtVehicle:
     footprint_xy: np.ndarray
     motion: str = ""
     velocity_xy: np.ndarray = field(default_factory=lambda: np.full(2, NAN))
+    visible_px: float = NAN
 
     def __post_init__(self) -> None:
         fp = np.asarray(self.footprint_xy, dtype=float)
@@ -137,6 +147,10 @@ class GtVehicle:
         if v.shape != (2,):
             raise ValueError(f"GtVehicle {self.id}: velocity_xy must have shape (2,), got {v}")
         object.__setattr__(self, "velocity_xy", v)
+        px = float(self.visible_px)
+        if not (math.isnan(px) or px >= 0):
+            raise ValueError(f"GtVehicle {self.id}: visible_px must be >= 0 or NaN, got {px}")
+        object.__setattr__(self, "visible_px", px)
 
     @classmethod
     def from_box(
@@ -517,12 +531,14 @@ def evaluate(frames: Sequence[EvalFrame], config: MetricsConfig | None = None) -
 class _Placed:
     """Every vehicle and hypothesis of a sequence, relative to the camera foot, and whether
     detection matched it: vehicles by their footprint point nearest the camera (G, 2),
-    found (G,), motion (G,) class; hypotheses by their own point (H, 2), matched (H,);
-    the index of each one's frame in the sequence, gt_frame (G,) and hyp_frame (H,)."""
+    found (G,), motion (G,) class, size_px (G,) apparent size; hypotheses by their own
+    point (H, 2), matched (H,); the index of each one's frame in the sequence, gt_frame
+    (G,) and hyp_frame (H,)."""
 
     gt_xy: np.ndarray
     found: np.ndarray
     motion: list[str]
+    size_px: np.ndarray
     hyp_xy: np.ndarray
     matched: np.ndarray
     hyp_gt_m: np.ndarray  # (H,) [m] footprint distance to the frame's nearest vehicle (inf: none)
@@ -542,6 +558,7 @@ class _Placed:
             np.asarray(gt_xy, float).reshape(-1, 2),
             np.array([(k, r) in gt_hit for k, r, _ in gt], bool),
             [g.motion for _, _, g in gt],
+            np.array([g.visible_px for _, _, g in gt], float).reshape(-1),
             np.asarray([frames[k].hyp_xy[c] - cam for k, c in hyp], float).reshape(-1, 2),
             np.array([(k, c) in hyp_hit for k, c in hyp], bool),
             np.array([dists[k][:, c].min(initial=np.inf) for k, c in hyp], float).reshape(-1),
@@ -557,6 +574,7 @@ class _Placed:
             self.gt_xy[g],
             self.found[g],
             [m for m, k in zip(self.motion, g, strict=True) if k],
+            self.size_px[g],
             self.hyp_xy[h],
             self.matched[h],
             self.hyp_gt_m[h],
@@ -630,8 +648,9 @@ def breakdown(
     frames: Sequence[EvalFrame], config: MetricsConfig | None = None, tracked: bool = True
 ) -> dict:
     """Where detection fails: recall and precision by range band (`RANGE_BANDS_M`) and by
-    bearing sector (`sector`), recall by the vehicles' motion (`MOTION_CLASSES`;
-    a hypothesis has no motion, so no precision there), what the unmatched hypotheses are
+    bearing sector (`sector`), recall by the vehicles' motion (`MOTION_CLASSES`) and by
+    their apparent size (`SIZE_CLASSES`; a hypothesis has neither, so no precision
+    there), what the unmatched hypotheses are
     (`unmatched_split`), and every metric of `evaluate` and the three breakdowns over the
     frames where the ego car moves and over those where it is stopped.
 
@@ -680,20 +699,31 @@ def _counted(placed: _Placed) -> dict:
 
 
 def _where(placed: _Placed) -> dict:
-    """{"range_bands", "sectors", "motion"} of `breakdown` for the placed vehicles and
-    hypotheses."""
-    motion = {}
+    """{"range_bands", "sectors", "motion", "sizes"} of `breakdown` for the placed
+    vehicles and hypotheses."""
     classes = np.array([m or "unknown" for m in placed.motion], dtype=object)
-    for name in MOTION_CLASSES + ("unknown",):
-        sel = classes == name
-        n, m = int(sel.sum()), int((sel & placed.found).sum())
-        if name != "unknown" or n:
-            motion[name] = {"gt_count": n, "matched": m, "recall": ratio(m, n)}
+    size = placed.size_px
+    sizes = {name: (size >= lo) & (size < hi) for name, (lo, hi) in SIZE_CLASSES.items()}
     return {
         "range_bands": _bins(placed, BAND_NAMES, band_labels),
         "sectors": _bins(placed, SECTORS, _sector_labels),
-        "motion": motion,
+        "motion": _recalls(
+            placed, {name: classes == name for name in MOTION_CLASSES + ("unknown",)}
+        ),
+        "sizes": _recalls(placed, {**sizes, "unknown": np.isnan(size)}),
     }
+
+
+def _recalls(placed: _Placed, classes: dict[str, np.ndarray]) -> dict:
+    """{class: {"gt_count", "matched", "recall"}} of the placed vehicles in each class
+    (G,) bool (a hypothesis has no class: no precision); an empty "unknown" class is
+    left out."""
+    out = {}
+    for name, sel in classes.items():
+        n, m = int(sel.sum()), int((sel & placed.found).sum())
+        if name != "unknown" or n:
+            out[name] = {"gt_count": n, "matched": m, "recall": ratio(m, n)}
+    return out
 
 
 def recall_polar(

@@ -116,7 +116,7 @@ def _state_rows(state: dict) -> dict:
 
 def _surround_section(surround: dict) -> str:
     """Where the tracks fail (`scenarios.detection_metrics.breakdown`): by range band,
-    bearing sector, the vehicles' motion and the ego car's state."""
+    bearing sector, the vehicles' motion and apparent size, and the ego car's state."""
     b = surround.get("tracks", {})
     parts = [
         f"<div class=sec><h2>surround: where the tracks find vehicles</h2>"
@@ -130,6 +130,11 @@ def _surround_section(surround: dict) -> str:
         parts.append(
             "<h3>by motion relative to the ego car</h3>"
             + _rows_table(b["motion"], ("recall", "gt_count", "matched"))
+        )
+    if "sizes" in b:
+        parts.append(
+            "<h3>by apparent size (COCO's: small below 32² px, medium to 96², large)</h3>"
+            + _rows_table(b["sizes"], ("recall", "gt_count", "matched"))
         )
     if "unmatched" in b:
         u = b["unmatched"]
@@ -162,6 +167,8 @@ def _surround_section(surround: dict) -> str:
                 + _rows_table(moving["range_bands"], ("recall", "precision", "gt_count", "matched"))
                 + "<h3>ego car moving: by motion relative to the ego car</h3>"
                 + _rows_table(moving["motion"], ("recall", "gt_count", "matched"))
+                + "<h3>ego car moving: by apparent size</h3>"
+                + _rows_table(moving.get("sizes", {}), ("recall", "gt_count", "matched"))
             )
     stages = _stage_rows(surround)
     if stages:

@@ -83,8 +83,9 @@ def vehicle_footprint(gt_frame: dict, vehicle: dict) -> np.ndarray:
 
 def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicle], np.ndarray]:
     """Vehicles visible (>= VISIBLE_PX_MIN px) within max_range_m, as footprints in the
-    ego road frame with their motion relative to the ego car (`motion_class`) and their
-    velocity over the ground in its axes (speed along the heading); also
+    ego road frame with their motion relative to the ego car (`motion_class`), their
+    velocity over the ground in its axes (speed along the heading) and the pixels they
+    cover; also
     (N, 2) all their footprint centres (for drawing)."""
     ego = gt_frame["ego"]
     R, _ = ego_road_frame(gt_frame)
@@ -105,7 +106,7 @@ def gt_evaluation_set(gt_frame: dict, max_range_m: float) -> tuple[list[GtVehicl
         if "speed_mps" in v and "yaw_rad" in v:
             heading = np.array([np.cos(v["yaw_rad"]), np.sin(v["yaw_rad"])])
             velocity = R.T @ (v["speed_mps"] * heading)
-        out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion, velocity))
+        out.append(GtVehicle(int(v["id"]), _convex_order(foot), motion, velocity, v["visible_px"]))
     return out, np.array(centres).reshape(-1, 2)
 
 

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from estimator.surround.tracking import Tracker
 from scenarios.detection_metrics import (
     MOTION_CLASSES,
+    SIZE_CLASSES,
     EvalFrame,
     GtVehicle,
     MetricsConfig,
@@ -399,6 +400,36 @@ def test_breakdown_counts_by_band_sector_motion_and_ego_state():
     assert ego["moving"]["range_bands"]["0-5 m"]["hyp_count"] == 2
     assert ego["stopped"]["range_bands"]["0-5 m"]["gt_count"] == 1
     assert ego["stopped"]["sectors"]["left"]["recall"] == 1.0
+    # sizes unknown (vehicles made without their pixels): all in the "unknown" class
+    assert b["sizes"]["unknown"] == {"gt_count": 4, "matched": 3, "recall": 0.75}
+    assert b["sizes"]["small"]["gt_count"] == 0 and math.isnan(b["sizes"]["small"]["recall"])
+
+
+def test_breakdown_by_apparent_size_uses_cocos_area_ranges():
+    """COCO's area ranges (pycocotools): small below 32^2 px, medium up to 96^2, large."""
+    assert SIZE_CLASSES == {
+        "small": (0.0, 1024.0), "medium": (1024.0, 9216.0), "large": (9216.0, 1e10),
+    }  # fmt: skip
+
+    def sized(i, x, px):
+        return GtVehicle(i, car(i, x, 0.0).footprint_xy, visible_px=px)
+
+    small, medium = sized(1, 22.0, 300), sized(2, 12.0, 5000)
+    edge, large = sized(3, -12.0, 1024), sized(4, 6.0, 20000)
+    frames = [
+        EvalFrame([small, medium, edge, large], [seen(medium, 1), seen(large, 2)]),
+        EvalFrame([small, large], [seen(small, 3)], ego_moving=False),
+    ]
+    b = breakdown(frames)
+    sizes = b["sizes"]
+    assert list(sizes) == ["small", "medium", "large"]  # none unknown: no such class
+    assert sizes["small"] == {"gt_count": 2, "matched": 1, "recall": 0.5}
+    assert sizes["medium"] == {"gt_count": 2, "matched": 1, "recall": 0.5}  # 1024 px: medium
+    assert sizes["large"] == {"gt_count": 2, "matched": 1, "recall": 0.5}
+    moving = b["ego_state"]["moving"]["sizes"]
+    assert (moving["small"]["recall"], moving["large"]["recall"]) == (0.0, 1.0)
+    with pytest.raises(ValueError, match="GtVehicle 5: visible_px must be >= 0 or NaN, got -1"):
+        GtVehicle(5, small.footprint_xy, visible_px=-1)
 
 
 def test_candidates_are_counted_without_ids_by_band_and_ego_state():

@@ -54,10 +54,15 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     }  # fmt: skip
     sur = m["surround"]  # where detection fails: every breakdown, for tracks and detections
     for part in ("tracks", "detections"):
-        assert set(sur[part]) == {"range_bands", "sectors", "motion", "unmatched", "ego_state"}
+        assert set(sur[part]) == {
+            "range_bands", "sectors", "motion", "sizes", "unmatched", "ego_state"
+        }  # fmt: skip
         bands = sur[part]["range_bands"]
         assert list(bands) == ["0-5 m", "5-10 m", "10-15 m", "15-25 m"]
         assert sum(b["gt_count"] for b in bands.values()) == m["detection"]["gt_count"]
+        sizes = sur[part]["sizes"]  # every vehicle has its pixels from the id image
+        assert list(sizes) == ["small", "medium", "large"]
+        assert sum(b["gt_count"] for b in sizes.values()) == m["detection"]["gt_count"]
         assert sur[part]["ego_state"]["moving"]["frames"] >= 20
         u = sur[part]["unmatched"]  # every unmatched point is one of the three kinds
         assert u["unmatched"] == u["duplicate"] + u["misplaced"] + u["clutter"]
@@ -76,6 +81,7 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert state["position_nees"]["mean"] > 0 and 0.0 <= state["heading"]["median_error_deg"] <= 90
     assert "the tracks' state against the truth" in (out / "report.html").read_text()
     assert "by motion relative to the ego car" in (out / "report.html").read_text()
+    assert "by apparent size" in (out / "report.html").read_text()
     assert "what the unmatched track points are" in (out / "report.html").read_text()
     seg = sur["segmentation"]  # the motion mask against the true vehicle pixels
     assert seg["frames"] == 23 and seg["vehicle_px"] > 0 and seg["marked_px"] > 0
