@@ -52,6 +52,10 @@ DETECTION_COLUMNS = (
         "position NEES (2: honest)",
         "{:.1f}",
     ),
+    *(
+        (_MOVING + f"sizes.{size}.recall", f"recall, {size} (COCO)", "{:.2f}")
+        for size in ("small", "medium", "large")
+    ),
     (
         "surround.tracks.ego_state.stopped.detection.gt_count",
         "vehicle-frames, ego stopped",

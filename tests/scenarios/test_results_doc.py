@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from scenarios.results_doc import ResultsError, load_bench, results_markdown
+from scenarios.results_doc import ResultsError, load_bench, record_of, results_markdown
 
 
 def _summary(tmp_path, role="check"):
@@ -107,6 +107,24 @@ def test_the_tracks_state_is_a_column_where_a_job_has_it(tmp_path):
     page = results_markdown([run], [], "omnibench results run")
     assert "| median velocity error [m/s] | position NEES (2: honest) |" in page
     assert "| 140 | 0.91 | 0.88 | – | 1.23 | 2.5 | 9 | 0.93 |" in page
+    assert "COCO" not in page  # no job has the recall by apparent size: no such columns
+
+
+def test_the_recall_by_apparent_size_is_a_column_each_where_a_job_has_it(tmp_path):
+    run = _summary(tmp_path)
+    summary = json.loads((run / "summary.json").read_text())
+    sizes = "surround.tracks.ego_state.moving.sizes."
+    summary["jobs"][0]["metrics"] |= {
+        sizes + "small.recall": 0.125,
+        sizes + "medium.recall": 0.5,
+        sizes + "large.recall": 1.0,
+    }
+    (run / "summary.json").write_text(json.dumps(summary))
+    page = results_markdown([run], [], "omnibench results run")
+    assert "| recall, small (COCO) | recall, medium (COCO) | recall, large (COCO) |" in page
+    assert "| – | 0.12 | 0.50 | 1.00 | 9 |" in page
+    # the record of a run keeps them (the page regenerated from it)
+    assert sizes + "medium.recall" in record_of(summary)["jobs"][0]["metrics"]
 
 
 def test_tuning_suite_is_said_to_be_not_held_out(tmp_path):
