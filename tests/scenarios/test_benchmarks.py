@@ -25,18 +25,25 @@ def test_bench_estimate_times_rendered_frames_and_the_synthetic_road(tmp_path):
     def bench():
         proc = subprocess.run(
             [sys.executable, "-m", "scenarios", "bench", "estimate", "--frames", "2",
-             "--scenario", str(path), "--camera", "omni-far", "--cache", str(cache), "--json"],
+             "--scenario", str(path), "--camera", "omni-far", "--cache", str(cache), "--json",
+             "--repeat", "2"],
             capture_output=True, text=True, timeout=600,
         )  # fmt: skip
         assert proc.returncode == 0, proc.stderr
         assert "p90" in proc.stderr and "synthetic road" in proc.stderr
+        proc_text[:] = [proc.stderr]
         return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    proc_text = [""]
 
     res = bench()
     assert KEYS <= set(res)
     assert res["bench"] == "estimate" and res["scenario"] == "highway-omni-near"
     assert res["frames"] == 2 and res["width"] == res["height"] == 160
     assert 0 < res["ms_per_frame"] <= res["p90_ms_per_frame"]
+    assert res["repeat"] == 2 and len(res["passes"]) == 2  # each frame's fastest of two
+    assert all(res["ms_per_frame"] <= p["ms_per_frame"] for p in res["passes"])
+    assert "fastest of 2 passes" in proc_text[0]
     assert res["synthetic_frames"] == 2 and res["synthetic_camera"] == "omni-far"
     assert 0 < res["synthetic_ms_per_frame"] <= res["synthetic_p90_ms_per_frame"]
     drives = [p for p in cache.iterdir() if p.is_dir()]

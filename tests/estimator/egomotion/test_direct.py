@@ -328,6 +328,15 @@ def test_bench_smoke() -> None:
     out = bench_direct("omni-far", n_frames=2, warmup=1)
     assert out["frames"] == 2 and out["ms_per_frame"] > 0 and out["speed_error_pct"] < 1.0
     assert out["blas_threads"] == 1  # one core: no BLAS thread spinning beside it
+    # two passes, each with a fresh estimator: each frame's fastest, every pass listed
+    two = bench_direct("omni-far", n_frames=2, warmup=1, repeat=2)
+    assert two["repeat"] == 2 and len(two["passes"]) == 2 and two["frames"] == 2
+    assert two["speed_error_pct"] == pytest.approx(out["speed_error_pct"])  # the same work
+    for p in two["passes"]:
+        assert two["ms_per_frame"] <= p["ms_per_frame"]
+        assert two["p90_ms_per_frame"] <= p["p90_ms_per_frame"]
+    with pytest.raises(ValueError, match="repeat must be 1 or more, got 0"):
+        bench_direct("omni-far", n_frames=2, warmup=1, repeat=0)
 
 
 # ---------------------------------------------------------------- rendered drive
