@@ -709,6 +709,9 @@ class VehicleDetector:
                 if not c.hidden:
                     self._refine(c, cur, early, maps, near, given=given, middle=middle)
         cands = self._in_range_merged(cands)
+        for c in cands:  # a box for each refined candidate kept (not for those dropped)
+            if c.outline_xy is not None:
+                c.box = fit_box(c.outline_xy, self._box_cfg)
         self.clock.lap("refine")
         return plan, cands
 
@@ -871,8 +874,7 @@ class VehicleDetector:
         # the camera pixel of the reported point: the contour pixel nearest to it
         i = int(np.argmin(np.hypot(*(xy_px - xy).T)))
         xy = xy * self._clearance_scale
-        det.outline_xy = outline * self._clearance_scale
-        det.box = fit_box(det.outline_xy, self._box_cfg)
+        det.outline_xy = outline * self._clearance_scale  # its box: `_candidates`
         det.x_m, det.y_m = float(xy[0]), float(xy[1])
         det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
@@ -1156,13 +1158,11 @@ def _warp_window(
     mx, my = maps
     fx = cv2.remap(mx, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     fy = cv2.remap(my, qu, qv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return cv2.remap(
-        frame,
-        (fx + 0.5) * scale - 0.5,
-        (fy + 0.5) * scale - 0.5,
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-    )
+    for f in (fx, fy):  # to full-resolution pixels, (f + 0.5) scale - 0.5, in place
+        f += 0.5
+        f *= scale
+        f -= 0.5
+    return cv2.remap(frame, fx, fy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
 def _fill_and_holes(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
