@@ -242,9 +242,15 @@ class SurroundAnalyzer:
             if hit and t.id in self._vehicle and any(t.extra is c for c in cands):
                 d = t.extra
                 heading = self._track_heading(t)
-                if heading is not None and not d.hidden and d.outline_xy is not None:
-                    yaw, sigma = heading
-                    d.box = fit_box(d.outline_xy, self._box_cfg, yaw, 2 * sigma) or d.box
+                if not d.hidden and d.outline_xy is not None:
+                    # the box of its lower outline, near the track's heading once it is known
+                    # (only a vehicle's detections are fitted: the other candidates' boxes
+                    # would not be read)
+                    if heading is not None:
+                        yaw, sigma = heading
+                        d.box = fit_box(d.outline_xy, self._box_cfg, yaw, 2 * sigma) or d.box
+                    elif d.box is None:
+                        d.box = fit_box(d.outline_xy, self._box_cfg)
                 if d.box is not None:
                     b = d.box
                     # the box where it was fitted: the detection lies the uncovered road

@@ -109,7 +109,7 @@ from estimator.egomotion.compensation import FrameCompensator
 from estimator.egomotion.homography import homography_parts
 from estimator.frame_times import StageClock
 from estimator.geometry import skew
-from estimator.surround.boxfit import Box, BoxFitConfig, fit_box
+from estimator.surround.boxfit import Box
 from estimator.surround.hidden import hidden_box
 from estimator.surround.outline import lower_outline, nearest_on_outline
 from estimator.surround.pixel_classifier import (
@@ -260,7 +260,9 @@ class Detection:
     bearing_rad: float = float("nan")  # [rad] atan2(y, x) of the nearest point
     score: float = float("nan")
     height_m: float = float("nan")  # [m] apparent height h (1 - d_near / d_far) of the blob
-    box: Box | None = None  # the vehicle's box fitted to its lower outline (None: no fit)
+    # the vehicle's box: a hidden one's from its bearings (`hidden_box`); a refined one's is
+    # fitted to outline_xy once it is a vehicle's detection (`SurroundAnalyzer`); None: none
+    box: Box | None = None
     outline_xy: np.ndarray | None = None  # (M, 2) [m] the lower outline the box was fitted to
 
 
@@ -423,7 +425,6 @@ class VehicleDetector:
         self._rays = camera.pixel_rays()
         h = mount.height_m
         self._clearance_scale = (h - min(cfg.vehicle_clearance_m, 0.5 * h)) / h
-        self._box_cfg = BoxFitConfig(size_m=cfg.hidden_box_m)
         # the last `detect`'s seconds by stage: warps, score, blobs, refine
         self.clock = StageClock()
         # "learned": the pixel classifier and each working-scale pixel's log(1 + road range)
@@ -709,9 +710,6 @@ class VehicleDetector:
                 if not c.hidden:
                     self._refine(c, cur, early, maps, near, given=given, middle=middle)
         cands = self._in_range_merged(cands)
-        for c in cands:  # a box for each refined candidate kept (not for those dropped)
-            if c.outline_xy is not None:
-                c.box = fit_box(c.outline_xy, self._box_cfg)
         self.clock.lap("refine")
         return plan, cands
 
@@ -874,7 +872,7 @@ class VehicleDetector:
         # the camera pixel of the reported point: the contour pixel nearest to it
         i = int(np.argmin(np.hypot(*(xy_px - xy).T)))
         xy = xy * self._clearance_scale
-        det.outline_xy = outline * self._clearance_scale  # its box: `_candidates`
+        det.outline_xy = outline * self._clearance_scale  # the box: `SurroundAnalyzer`
         det.x_m, det.y_m = float(xy[0]), float(xy[1])
         det.pixel = (float(c0 + cols[i]), float(r0 + rows[i]))
         det.bearing_rad = float(np.arctan2(xy[1], xy[0]))
