@@ -233,6 +233,31 @@ def test_box_heading_from_the_track(omni):
     assert abs(d.box.yaw_rad - yaw) < 0.15 and err < 0.5
 
 
+def test_a_vehicles_detection_gets_the_box_of_its_outline(omni):
+    """A refined candidate carries its lower outline, not a box: once its track is a
+    vehicle, the analyzer fits the box. Here a parked car the ego car drives past: its
+    track has no heading over the ground, so the fit is free; the box lies at the car's
+    centre from the point it is reported with."""
+    sa = SurroundAnalyzer(*omni, surround=OWN_POINT)
+    offsets, frames = [], []  # the true centre from the detected point
+    for k in range(14):
+        c = np.array([24.0 - SPEED * DT * k, 4.0])  # still on the road: it comes nearer
+        pts = seen_outline(*c, 0.0, noise_m=0.03, seed=k)
+        near = pts[np.argmin(np.hypot(*pts.T))]
+        d = _det(*near)
+        d.outline_xy = pts
+        offsets.append(c - near)
+        frames.append([d])
+    sf = _run(sa, frames)
+    (tr,) = sf.tracks
+    assert sa._track_heading(tr) is None  # too slow over the ground for a heading
+    (d,) = sf.detection.detections
+    assert d.box is not None and abs(d.box.yaw_rad) < 0.1
+    err = math.hypot(*(np.array([d.box.x_m - d.x_m, d.box.y_m - d.y_m]) - offsets[-1]))
+    assert err < 0.5
+    assert all(f[0].box is None for f in frames[:3])  # not fitted before it was a vehicle
+
+
 def test_track_heading_needs_speed_and_certainty(omni):
     """The heading of a track's velocity over the ground, with its std from the velocity's
     covariance across it; none below heading_min_speed_mps or above heading_max_sigma_rad."""
