@@ -52,6 +52,18 @@ def fastest_pass(passes: list[FrameTimes]) -> FrameTimes:
     return out
 
 
+def passes_summary(passes: list[FrameTimes]) -> dict:
+    """`FrameTimes.summary` of the `fastest_pass` of passes over the same frames, with
+    ``repeat`` (how many passes) and ``passes`` (each one's median and p90, as timed)."""
+    return {
+        **fastest_pass(passes).summary(),
+        "repeat": len(passes),
+        "passes": [
+            {k: p.summary()[k] for k in ("ms_per_frame", "p90_ms_per_frame")} for p in passes
+        ],
+    }
+
+
 class StageClock:
     """Seconds spent per named stage of the last frame (`omnibench bench render`, `bench
     detect`)."""

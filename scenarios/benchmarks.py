@@ -27,7 +27,7 @@ import numpy as np
 from estimator.camera.files import load_camera, with_folder_body_mask
 from estimator.egomotion.bench import time_steps
 from estimator.fileio import read_png
-from estimator.frame_times import FrameTimes, fastest_pass
+from estimator.frame_times import FrameTimes, passes_summary
 from estimator.surround.analyzer import SurroundAnalyzer
 from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS, DetectorConfig
 from scenarios.config import load_scenario
@@ -55,7 +55,7 @@ def bench_detect(
     so n_frames - 1 are timed); scenario: a library name or a scenario file; detector: a
     built-in method (`DetectorConfig.method`); repeat: passes over the drive, each with a
     fresh analyzer (the same work); with more than one, each frame's time (and stage time) is
-    its fastest pass's (`estimator.frame_times.fastest_pass`: on a shared machine, the code's
+    its fastest pass's (`estimator.frame_times.passes_summary`: on a shared machine, the code's
     own cost), and ``passes`` lists every pass's median and p90.
     """
     if detector not in DETECTOR_METHODS:
@@ -119,11 +119,7 @@ def bench_detect(
         "scenario": dense.name,
         "detector": detector,
         "vehicles_in_range": float(np.mean(near)),
-        **fastest_pass(passes).summary(),
-        "repeat": repeat,
-        "passes": [
-            {k: p.summary()[k] for k in ("ms_per_frame", "p90_ms_per_frame")} for p in passes
-        ],
+        **passes_summary(passes),
         "stages_ms": {n: 1000.0 * float(np.median(stage_s[:, i])) for i, n in enumerate(names)},
         "width": cam.width,
         "height": cam.height,

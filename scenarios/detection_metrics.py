@@ -78,9 +78,10 @@ RANGE_BANDS_M = (0.0, 5.0, 10.0, 15.0, 25.0)  # [m] edges of the range bands of 
 SECTORS = ("front", "left", "rear", "right")  # |bearing| < 45, 45..135 left, >= 135, right
 # the COCO benchmark's apparent sizes (pycocotools' area ranges [px]: small below 32^2,
 # medium to 96^2, large above): a vehicle's pixels in the full-resolution id image
+_COCO = CocoParams()
 SIZE_CLASSES = {
     name: (float(lo), float(hi))
-    for name, (lo, hi) in zip(CocoParams().areaRngLbl, CocoParams().areaRng, strict=True)
+    for name, (lo, hi) in zip(_COCO.areaRngLbl, _COCO.areaRng, strict=True)
     if name != "all"
 }
 UNMATCHED_KINDS = ("duplicate", "misplaced", "clutter")  # `unmatched_split`

@@ -21,7 +21,7 @@ from estimator.camera.files import load_camera
 from estimator.egomotion.direct import DirectEstimator
 from estimator.egomotion.direct_config import default_config
 from estimator.egomotion.ego_estimator import EgoMotionEstimator
-from estimator.frame_times import FrameTimes, fastest_pass
+from estimator.frame_times import FrameTimes, passes_summary
 from estimator.synthetic import RoadTexture, drive_poses, pixel_angle_rad, render_road, to_uint8
 
 
@@ -65,11 +65,7 @@ def time_steps(
     finally:
         cv2.setNumThreads(threads)
     return {
-        **fastest_pass(passes).summary(),
-        "repeat": repeat,
-        "passes": [
-            {k: p.summary()[k] for k in ("ms_per_frame", "p90_ms_per_frame")} for p in passes
-        ],
+        **passes_summary(passes),
         "speed_error_pct": 100.0 * float(np.median(errors)),
         "blas_threads": blas_threads,
         "points": getattr(rec, "n_points", 0),

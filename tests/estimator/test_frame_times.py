@@ -4,7 +4,7 @@ import time
 
 import pytest
 
-from estimator.frame_times import FrameTimes, fastest_pass
+from estimator.frame_times import FrameTimes, fastest_pass, passes_summary
 
 
 def test_warm_up_frames_are_left_out_and_busy_frames_count_cpu_time():
@@ -32,6 +32,9 @@ def test_fastest_pass_keeps_each_frames_least_time():
     best = fastest_pass([a, b])
     assert best.wall_s == [0.010, 0.011, 0.020] and best.cpu_s == [0.009, 0.010, 0.018]
     assert best.summary()["frames"] == 3
+    s = passes_summary([a, b])  # the fastest pass's figures, and every pass as timed
+    assert s["repeat"] == 2 and s["frames"] == 3 and s["ms_per_frame"] == pytest.approx(11.0)
+    assert [p["ms_per_frame"] for p in s["passes"]] == pytest.approx([20.0, 12.0])
     # a pass over other frames cannot be compared frame by frame
     b.wall_s.append(0.01)
     with pytest.raises(ValueError, match=r"same frames, got \[3, 4\]"):

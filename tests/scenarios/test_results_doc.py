@@ -95,32 +95,32 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     assert f"- {what}: each pass's median / p90 18.0 / 21.0, 17.5 / 26.0 ms" in page
 
 
-def test_the_tracks_state_is_a_column_where_a_job_has_it(tmp_path):
+def _page_with(tmp_path, metrics: dict) -> tuple[str, dict]:
+    """The results page of `_summary`'s run with ``metrics`` added to its first job, and
+    that run's summary."""
     run = _summary(tmp_path)
     summary = json.loads((run / "summary.json").read_text())
-    state = "surround.track_state.ego_state.moving."
-    summary["jobs"][0]["metrics"] |= {
-        state + "velocity.median_error_mps": 1.234,
-        state + "position_nees.mean": 2.46,
-    }
+    summary["jobs"][0]["metrics"] |= metrics
     (run / "summary.json").write_text(json.dumps(summary))
-    page = results_markdown([run], [], "omnibench results run")
+    return results_markdown([run], [], "omnibench results run"), summary
+
+
+def test_the_tracks_state_is_a_column_where_a_job_has_it(tmp_path):
+    state = "surround.track_state.ego_state.moving."
+    page, _ = _page_with(
+        tmp_path, {state + "velocity.median_error_mps": 1.234, state + "position_nees.mean": 2.46}
+    )
     assert "| median velocity error [m/s] | position NEES (2: honest) |" in page
     assert "| 140 | 0.91 | 0.88 | – | 1.23 | 2.5 | 9 | 0.93 |" in page
     assert "COCO" not in page  # no job has the recall by apparent size: no such columns
 
 
 def test_the_recall_by_apparent_size_is_a_column_each_where_a_job_has_it(tmp_path):
-    run = _summary(tmp_path)
-    summary = json.loads((run / "summary.json").read_text())
     sizes = "surround.tracks.ego_state.moving.sizes."
-    summary["jobs"][0]["metrics"] |= {
-        sizes + "small.recall": 0.125,
-        sizes + "medium.recall": 0.5,
-        sizes + "large.recall": 1.0,
-    }
-    (run / "summary.json").write_text(json.dumps(summary))
-    page = results_markdown([run], [], "omnibench results run")
+    page, summary = _page_with(
+        tmp_path,
+        {sizes + "small.recall": 0.125, sizes + "medium.recall": 0.5, sizes + "large.recall": 1.0},
+    )
     assert "| recall, small (COCO) | recall, medium (COCO) | recall, large (COCO) |" in page
     assert "| – | 0.12 | 0.50 | 1.00 | 9 |" in page
     # the record of a run keeps them (the page regenerated from it)
