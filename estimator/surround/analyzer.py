@@ -29,8 +29,8 @@ A vehicle's box. The detector fits a car-sized box to the lower outline it sees
 (`estimator.surround.boxfit`), and one frame's outline often leaves the heading
 ambiguous (one face seen: the rear or a side?). A vehicle track that knows the
 direction of its velocity over the ground (at least `heading_min_speed_mps`, std at
-most `heading_max_sigma_rad`) decides it: the outline is fitted again with headings
-within two std of that direction only. The box is reported beside the point.
+most `heading_max_sigma_rad`) decides it: the box takes that heading (to the fit's
+1-deg step), and the outline places it along it. The box is reported beside the point.
 
 The road a vehicle uncovered. The detector's blob holds, besides the vehicle, the road
 it uncovered over the detector's baseline, and a vehicle driving away from the camera is
@@ -243,12 +243,11 @@ class SurroundAnalyzer:
                 d = t.extra
                 heading = self._track_heading(t)
                 if not d.hidden and d.outline_xy is not None:
-                    # the box of its lower outline, near the track's heading once it is known
-                    # (only a vehicle's detections are fitted: the other candidates' boxes
-                    # would not be read)
+                    # the box of its lower outline, along the track's heading once it is
+                    # known (only a vehicle's detections are fitted: the other candidates'
+                    # boxes would not be read)
                     if heading is not None:
-                        yaw, sigma = heading
-                        d.box = fit_box(d.outline_xy, self._box_cfg, yaw, 2 * sigma) or d.box
+                        d.box = fit_box(d.outline_xy, self._box_cfg, heading[0], 0.0) or d.box
                     elif d.box is None:
                         d.box = fit_box(d.outline_xy, self._box_cfg)
                 if d.box is not None:

@@ -210,8 +210,8 @@ def test_a_tracks_point_covariance_keeps_one_measurements_error(omni):
 def test_box_heading_from_the_track(omni):
     """A car driving at 0.6 rad to the ego car's heading, seen end-on-ish, whose single-frame
     boxes are placed across its true heading: once its track knows its velocity (12 m/s over
-    the ground), the reported box is fitted again near that heading, at the car's centre
-    from the point it is reported with."""
+    the ground), the reported box takes that heading, at the car's centre from the point
+    it is reported with."""
     from estimator.surround.boxfit import Box
 
     sa = SurroundAnalyzer(*omni, surround=OWN_POINT)
@@ -231,6 +231,9 @@ def test_box_heading_from_the_track(omni):
     (d,) = sf.detection.detections
     err = math.hypot(*(np.array([d.box.x_m - d.x_m, d.box.y_m - d.y_m]) - offsets[-1]))
     assert abs(d.box.yaw_rad - yaw) < 0.15 and err < 0.5
+    (tr,) = sf.tracks
+    track_yaw, _ = sa._track_heading(tr)
+    assert abs(d.box.yaw_rad - track_yaw) <= math.radians(1.0) + 1e-9  # the fit's grid step
 
 
 def test_a_vehicles_detection_gets_the_box_of_its_outline(omni):
