@@ -55,12 +55,11 @@ def fastest_pass(passes: list[FrameTimes]) -> FrameTimes:
 def passes_summary(passes: list[FrameTimes]) -> dict:
     """`FrameTimes.summary` of the `fastest_pass` of passes over the same frames, with
     ``repeat`` (how many passes) and ``passes`` (each one's median and p90, as timed)."""
+    timed = [p.summary() for p in passes]
     return {
         **fastest_pass(passes).summary(),
         "repeat": len(passes),
-        "passes": [
-            {k: p.summary()[k] for k in ("ms_per_frame", "p90_ms_per_frame")} for p in passes
-        ],
+        "passes": [{k: s[k] for k in ("ms_per_frame", "p90_ms_per_frame")} for s in timed],
     }
 
 

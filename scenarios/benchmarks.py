@@ -189,9 +189,15 @@ def bench_estimate(
         "bench": "estimate",
         **{
             k: res[k]
-            for k in ("ms_per_frame", "p90_ms_per_frame", "cpu_ms_per_frame", "frames", "repeat")
+            for k in (
+                "ms_per_frame",
+                "p90_ms_per_frame",
+                "cpu_ms_per_frame",
+                "frames",
+                "repeat",
+                "passes",
+            )
         },
-        "passes": res["passes"],
         "scenario": sc.name,
         "camera": sc.camera if isinstance(sc.camera, str) else "inline",
         "width": cam.width,
