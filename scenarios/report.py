@@ -179,6 +179,20 @@ def _surround_section(surround: dict) -> str:
             "candidates (before the tracker decides which are vehicles); the reported "
             "tracks</p>"
         )
+    losses = surround.get("tracker")
+    if isinstance(losses, dict):
+        parts.append(
+            "<h3>ego car moving: what the candidates found and the tracks did not</h3>"
+            + _rows_table(
+                {"vehicle-frames": {**losses["lost_by_track_state"], "all": losses["lost"]}},
+                (*losses["lost_by_track_state"], "all"),
+            )
+            + f"<p>by the state of the found candidate's track, of "
+            f"{_fmt(losses['candidates_matched'])} vehicle-frames the candidates found "
+            f"(tentative: not yet confirmed; young: too few hits to be a vehicle; "
+            f"intermittent: too low a hit rate; vehicle: its reported point elsewhere; none: "
+            f"no track); {_fmt(losses['tracks_only'])} found by the tracks only</p>"
+        )
     state = surround.get("track_state")
     if isinstance(state, dict):
         parts.append(

@@ -61,6 +61,7 @@ from scenarios.report import write_run_report
 from scenarios.road_residual import road_residuals
 from scenarios.segmentation import SegmentationAudit
 from scenarios.surround_outputs import SurroundRecorder, box_centres
+from scenarios.tracker_losses import tracker_losses
 from sim.drive import load_groundtruth, render_drive
 
 VISIBLE_PX_MIN = 50  # a ground-truth vehicle is in the evaluation set from this many pixels
@@ -191,6 +192,7 @@ def run_scenario(
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
     records, eval_det, eval_cand, t_est = [], [], [], []
+    cand_states, cand_k = [], []  # each candidate's track state, and the frame, per frame
     still_k = min(len(gt) - 1, max(1, len(gt) * 2 // 3))
     # tracks.csv, tracks.png, surround.png and analysis.mp4, as for a recording
     recorder = SurroundRecorder(
@@ -246,6 +248,8 @@ def run_scenario(
             eval_det.append(EvalFrame(gt_set, dets, t, moving, box_centres(det_boxes)))
             cands = [(i, d.x_m, d.y_m) for i, d in enumerate(sf.detection.candidates)]
             eval_cand.append(EvalFrame(gt_set, cands, t, moving))
+            cand_states.append([d.track_state for d in sf.detection.candidates])
+            cand_k.append(k)
         recorder.finish(title=f"{scenario.name} - {estimator}")
     finally:
         recorder.close()
@@ -275,6 +279,14 @@ def run_scenario(
     )
     write_mot_tracks(trk_frames, out_dir / "tracks.mot.txt")
     trk = track_sections(trk_frames, mcfg, det_cfg.max_range_m)
+    # which rule of the tracker lost what the candidates found (built-in analyzers: their
+    # candidates carry their track's state); trk_frames[k - 1] is frame k
+    cand_tracks = [trk_frames[k - 1] for k in cand_k]
+    losses = (
+        {"tracker": tracker_losses(eval_cand, cand_states, cand_tracks, mcfg)}
+        if audit is not None
+        else {}
+    )
     viz.plot_recall_polar(
         trk["surround"]["recall_polar"],
         out_dir / "recall_polar.png",
@@ -299,6 +311,7 @@ def run_scenario(
             "candidates": breakdown(eval_cand, mcfg, tracked=False),
             "detections": breakdown(eval_det, mcfg),
             **trk["surround"],
+            **losses,
             **({"segmentation": audit.result()} if audit is not None else {}),
         },
         "compensation": compensation,

@@ -20,6 +20,8 @@ are the candidates assigned to vehicle tracks, placed at their track's Kalman
 posterior of the frame (`SurroundConfig.report_filtered`: a single frame's
 nearest point jitters by 2-3 px, ~1-2 m at 15-20 m); the reported tracks are
 the vehicle tracks that were detected within the last `max_coast_frames` frames.
+Each candidate keeps what this decision made of its track (`Detection.track_state`,
+`TRACK_STATES`), so that an evaluation can tell which rule lost a vehicle it found.
 
 A candidate whose ground point is hidden (car-body mask) is a bearing-only
 measurement for the tracker; once assigned to a track, its reported position is
@@ -62,6 +64,12 @@ from estimator.surround.detection import (
     VehicleDetector,
 )
 from estimator.surround.tracking import Track, Tracker, TrackerConfig, swept_measurement
+
+# What the tracker made of a candidate (`Detection.track_state`): its track is a vehicle
+# (reported); or not yet confirmed (M of N); or confirmed with fewer than
+# `SurroundConfig.vehicle_min_hits` hits; or with enough hits but a hit rate below
+# `vehicle_on` (or fallen below `vehicle_off`)
+TRACK_STATES = ("vehicle", "tentative", "young", "intermittent")
 
 
 @dataclass(frozen=True)
@@ -239,7 +247,10 @@ class SurroundAnalyzer:
                     self._vehicle.discard(t.id)
             elif t.confirmed and t.hits >= cfg.vehicle_min_hits and r >= cfg.vehicle_on:
                 self._vehicle.add(t.id)
-            if hit and t.id in self._vehicle and any(t.extra is c for c in cands):
+            held = hit and any(t.extra is c for c in cands)  # its candidate of this frame
+            if held:
+                t.extra.track_state = self._track_state(t)
+            if held and t.id in self._vehicle:
                 d = t.extra
                 heading = self._track_heading(t)
                 if not d.hidden and d.outline_xy is not None:
@@ -273,6 +284,14 @@ class SurroundAnalyzer:
                     d.box = replace(d.box, x_m=d.x_m + dx, y_m=d.y_m + dy)
                 out.append(d)
         return out
+
+    def _track_state(self, track: Track) -> str:
+        """One of `TRACK_STATES`: what the vehicle decision made of a live track."""
+        if track.id in self._vehicle:
+            return "vehicle"
+        if not track.confirmed:
+            return "tentative"
+        return "young" if track.hits < self.cfg.vehicle_min_hits else "intermittent"
 
     def _track_heading(self, track: Track) -> tuple[float, float] | None:
         """(heading, its std) [rad] of a track's velocity over the ground, or None where

@@ -264,6 +264,9 @@ class Detection:
     # fitted to outline_xy once it is a vehicle's detection (`SurroundAnalyzer`); None: none
     box: Box | None = None
     outline_xy: np.ndarray | None = None  # (M, 2) [m] the lower outline the box was fitted to
+    # the state of the track this candidate updated or started, after the frame's tracking
+    # (`SurroundAnalyzer`, one of its `TRACK_STATES`); "": none (no tracker, or a birth refused)
+    track_state: str = ""
 
 
 class DetectionFrame:

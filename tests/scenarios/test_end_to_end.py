@@ -73,6 +73,14 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert cand["unmatched"]["hyp_count"] == cand["detection"]["hyp_count"] > 0
     assert 0.0 < cand["detection"]["recall"] <= 1.0
     assert "where vehicles are lost, stage by stage" in (out / "report.html").read_text()
+    lost = sur["tracker"]  # what the candidates found and the tracks did not, by rule
+    moving_cand = cand["ego_state"]["moving"]["detection"]
+    assert lost["candidates_matched"] == moving_cand["matched"]  # the same matching
+    assert lost["gt_count"] == moving_cand["gt_count"]
+    assert lost["tracks_matched"] == sur["tracks"]["ego_state"]["moving"]["detection"]["matched"]
+    assert lost["lost"] == sum(lost["lost_by_track_state"].values())
+    assert lost["lost"] - lost["tracks_only"] == lost["candidates_matched"] - lost["tracks_matched"]
+    assert "what the candidates found and the tracks did not" in (out / "report.html").read_text()
     assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
     state = sur["track_state"]  # the matched tracks' velocity, heading and NEES
     assert state["pairs"] == m["track_detection"]["matched"] > 0
