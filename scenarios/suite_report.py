@@ -49,6 +49,7 @@ TABLE_METRICS = (
     ("point_pull.speed_pull_pct", "speed pull at truth [%]"),
     ("point_pull.yaw_rate_pull_dps", "yaw pull at truth [deg/s]"),
     ("surround.candidates.detection.recall", "candidate recall"),
+    ("surround.tracker.lost_share", "tracker lost (of candidate finds)"),
     ("detection.recall", "recall"),
     ("detection.precision", "precision"),
     ("tracking.mota", "MOTA"),
