@@ -61,6 +61,7 @@ DETECTION_COLUMNS = (
         "vehicle-frames, ego stopped",
         "{:.0f}",
     ),
+    ("surround.tracker.lost_share", "share of the candidates' finds the tracker lost", "{:.2f}"),
     ("detection.recall", "detections' recall, all frames", "{:.2f}"),
     ("surround.segmentation.pixel_recall", "mask pixel recall", "{:.2f}"),
     ("surround.segmentation.pixel_precision", "mask pixel precision", "{:.2f}"),

@@ -127,6 +127,17 @@ def test_the_recall_by_apparent_size_is_a_column_each_where_a_job_has_it(tmp_pat
     assert sizes + "medium.recall" in record_of(summary)["jobs"][0]["metrics"]
 
 
+def test_the_tracker_losses_are_a_column_where_a_job_has_them(tmp_path):
+    page, summary = _page_with(tmp_path, {"surround.tracker.lost_share": 0.1717})
+    assert "| share of the candidates' finds the tracker lost |" in page
+    assert "| 0.17 |" in page
+    assert "surround.tracker.lost_share" in record_of(summary)["jobs"][0]["metrics"]
+    old = tmp_path / "old"  # a run made before the figure: no such column
+    old.mkdir()
+    page, _ = _page_with(old, {})
+    assert "tracker lost" not in page
+
+
 def test_tuning_suite_is_said_to_be_not_held_out(tmp_path):
     page = results_markdown([_summary(tmp_path, role="tuning")], [], "omnibench results run")
     assert "not held out" in page
