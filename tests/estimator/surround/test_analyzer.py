@@ -309,28 +309,29 @@ def test_vehicle_ahead_is_placed_in_front_of_the_road_it_uncovered(omni):
         assert (d.box.x_m, d.box.y_m) == pytest.approx((box.x_m, box.y_m))
 
 
+def _hits_and_states(cam, mount, frames):
+    """(hits of its track, track state) of the first candidate of each frame that has one,
+    the analyzer stepped over a blank first frame and then ``frames`` (own-point config)."""
+    sa = SurroundAnalyzer(cam, mount, surround=OWN_POINT)
+    _stub(sa, frames)
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
+    out = []
+    for k in range(1, len(frames) + 1):
+        cands = sa.step(k, k * DT, img, X, DT, SPEED, 0.0).detection.candidates
+        out += [(sa.tracker.tracks[0].hits, cands[0].track_state)] if cands else []
+    return out
+
+
 def test_each_candidate_keeps_what_the_vehicle_decision_made_of_its_track(omni):
     """A vehicle found every frame is tentative until confirmed (3 of 4), young until its
     vehicle_min_hits-th hit, then a vehicle; one missed in every other frame after its first
     three hits (before its fifth) has the hits but not the hit rate: intermittent."""
     cam, mount = omni
-    cfg = OWN_POINT
-    steady = [[_det(15.0, 4.0)] for _ in range(9)]
-    sa = SurroundAnalyzer(cam, mount, surround=cfg)
-    _stub(sa, steady)
-    img = np.zeros((cam.height, cam.width, 3), np.uint8)
-    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
-    states = [sa.step(k, k * DT, img, X, DT, SPEED, 0.0).detection.candidates[0].track_state
-              for k in range(1, 9)]  # fmt: skip
-    n = cfg.vehicle_min_hits
-    assert states == ["tentative"] * 2 + ["young"] * (n - 3) + ["vehicle"] * (9 - n)
-    flicker = [[_det(15.0, 4.0)] if k < 3 or k % 2 == 0 else [] for k in range(16)]
-    sa = SurroundAnalyzer(cam, mount, surround=cfg)
-    _stub(sa, flicker)
-    sa.step(0, 0.0, img, np.zeros(9), 0.0, SPEED, 0.0)
-    seen = []
-    for k in range(1, 16):
-        c = sa.step(k, k * DT, img, X, DT, SPEED, 0.0).detection.candidates
-        seen += [(sa.tracker.tracks[0].hits, c[0].track_state)] if c else []
-    assert [s for h, s in seen if h >= n] == ["intermittent"] * len([h for h, _ in seen if h >= n])
-    assert len([h for h, _ in seen if h >= n]) >= 3
+    n = OWN_POINT.vehicle_min_hits
+    steady = [[_det(15.0, 4.0)] for _ in range(8)]
+    states = [s for _, s in _hits_and_states(cam, mount, steady)]
+    assert states == ["tentative"] * 2 + ["young"] * (n - 3) + ["vehicle"] * (len(steady) - n + 1)
+    flicker = [[_det(15.0, 4.0)] if k < 3 or k % 2 == 0 else [] for k in range(15)]
+    late = [s for hits, s in _hits_and_states(cam, mount, flicker) if hits >= n]
+    assert len(late) >= 3 and set(late) == {"intermittent"}
