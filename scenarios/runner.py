@@ -284,7 +284,7 @@ def run_scenario(
     cand_tracks = [trk_frames[k - 1] for k in cand_k]
     losses = (
         {"tracker": tracker_losses(eval_cand, cand_states, cand_tracks, mcfg)}
-        if audit is not None
+        if isinstance(surround, SurroundAnalyzer)
         else {}
     )
     viz.plot_recall_polar(

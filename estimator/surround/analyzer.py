@@ -237,6 +237,7 @@ class SurroundAnalyzer:
         self._box = {i: b for i, b in self._box.items() if i in ids}
         self._vehicle &= ids
         out = []
+        this_frame = {id(c) for c in cands}  # the frame's candidates (alive: ids unique)
         for t in live:
             hit = t.misses == 0
             r = self._rate.get(t.id)
@@ -247,7 +248,7 @@ class SurroundAnalyzer:
                     self._vehicle.discard(t.id)
             elif t.confirmed and t.hits >= cfg.vehicle_min_hits and r >= cfg.vehicle_on:
                 self._vehicle.add(t.id)
-            held = hit and any(t.extra is c for c in cands)  # its candidate of this frame
+            held = hit and id(t.extra) in this_frame  # it holds a candidate of this frame
             if held:
                 t.extra.track_state = self._track_state(t)
             if held and t.id in self._vehicle:

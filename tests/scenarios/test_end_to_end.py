@@ -79,6 +79,10 @@ def test_omnibench_run_end_to_end(tmp_path: Path):
     assert lost["gt_count"] == moving_cand["gt_count"]
     assert lost["tracks_matched"] == sur["tracks"]["ego_state"]["moving"]["detection"]["matched"]
     assert lost["lost"] == sum(lost["lost_by_track_state"].values())
+    # every candidate reaches the metric with its track's state (none refused: few tracks),
+    # and a vehicle's first frames, before its track is one, are lost to the decision
+    assert lost["lost_by_track_state"]["none"] == 0
+    assert lost["lost_by_track_state"]["tentative"] + lost["lost_by_track_state"]["young"] > 0
     assert lost["lost"] - lost["tracks_only"] == lost["candidates_matched"] - lost["tracks_matched"]
     assert "what the candidates found and the tracks did not" in (out / "report.html").read_text()
     assert np.sum(sur["recall_polar"]["gt_count"]) == m["detection"]["gt_count"]
