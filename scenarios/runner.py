@@ -182,12 +182,10 @@ def run_scenario(
     est = make_estimator(estimator, camera, mount)
     # surround analysis sees the road up to the car body's silhouette
     surround = make_surround(detector, with_folder_body_mask(camera, drive_dir), mount, det_cfg)
-    # the motion mask against the vehicles' true pixels (built-in detectors have one)
-    audit = (
-        SegmentationAudit(surround.detector.analysed_area)
-        if isinstance(surround, SurroundAnalyzer)
-        else None
-    )
+    # built-in analyzers have a motion mask (scored against the vehicles' true pixels) and
+    # candidates that carry their track's state (the tracker's losses)
+    builtin = isinstance(surround, SurroundAnalyzer)
+    audit = SegmentationAudit(surround.detector.analysed_area) if builtin else None
     unit_rays = camera_unit_rays(camera) if road_mask else None
     pull = PullMap(camera, mount)  # where the images pull the estimate off the truth
     still_image = None
@@ -283,9 +281,7 @@ def run_scenario(
     # candidates carry their track's state); trk_frames[k - 1] is frame k
     cand_tracks = [trk_frames[k - 1] for k in cand_k]
     losses = (
-        {"tracker": tracker_losses(eval_cand, cand_states, cand_tracks, mcfg)}
-        if isinstance(surround, SurroundAnalyzer)
-        else {}
+        {"tracker": tracker_losses(eval_cand, cand_states, cand_tracks, mcfg)} if builtin else {}
     )
     viz.plot_recall_polar(
         trk["surround"]["recall_polar"],
