@@ -153,6 +153,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("drive_dir", type=Path, help="a rendered drive (omnibench render)")
     p.add_argument("--every", type=int, default=1, help="every n-th frame")
     a = p.parse_args(argv)
+    if a.every < 1:
+        p.error(f"--every must be >= 1, got {a.every}")
+    for name in ("camera.yaml", "groundtruth.jsonl", "frames"):
+        if not (a.drive_dir / name).exists():
+            p.error(f"{a.drive_dir}: not a rendered drive (no {name})")
     res = summary(drive_faces(a.drive_dir, a.every))
     for band, r in res.items():
         print(

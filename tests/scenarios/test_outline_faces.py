@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from scenarios.config import load_scenario
 from scenarios.detection_metrics import BAND_NAMES
-from scenarios.outline_faces import drive_faces, face_depths, summary
+from scenarios.outline_faces import drive_faces, face_depths, main, summary
 from sim.drive import render_drive
 
 # a 5 x 2 m car ahead and to the right: its rear face at x = 6.5, its near side at y = -3
@@ -70,3 +70,13 @@ def test_a_rendered_dense_drive(tmp_path):
     assert sum(res[b]["detections"] for b in BAND_NAMES) == len(recs)
     with pytest.raises(ValueError, match="every"):
         drive_faces(tmp_path, every=0)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [(["--every", "0"], "--every must be >= 1"), ([], "not a rendered drive (no camera.yaml)")],
+)
+def test_the_command_names_bad_input_before_any_work(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "nowhere"), *args])
+    assert e.value.code == 2 and message in capsys.readouterr().err
