@@ -36,6 +36,15 @@ from sim.drive import load_groundtruth, render_drive
 DETECT_BENCH_SCENARIO = "dense-exit-omni-near"  # the drive `bench_detect` times
 
 
+def true_motion(gt_frame: dict) -> tuple[np.ndarray, float]:
+    """(x (9,), dt [s]): a ground-truth frame's motion since the previous one, as the
+    surround analyzer takes an estimate (`SurroundAnalyzer.step`); zeros on the first."""
+    m = gt_frame["motion_from_prev"]
+    if not m:
+        return np.zeros(9), 0.0
+    return np.r_[m["V_mps"], m["W_rps"], m["A_rad"]], float(m["dt_s"])
+
+
 def bench_detect(
     camera: str | dict[str, Any] = "omni-near",
     n_frames: int | None = None,
@@ -89,9 +98,7 @@ def bench_detect(
             sa = SurroundAnalyzer(camera_model, mount, DetectorConfig(method=detector))
             clock, stages = FrameTimes(), []
             for k, img in enumerate(images):
-                m = gt[k]["motion_from_prev"]
-                x = np.r_[m["V_mps"], m["W_rps"], m["A_rad"]] if m else np.zeros(9)
-                dt = m["dt_s"] if m else 0.0
+                x, dt = true_motion(gt[k])
                 ego = gt[k]["ego"]
                 clock.start()
                 sa.step(k, gt[k]["t_s"], img, x, dt, ego["speed_mps"], ego["yaw_rate_rps"])

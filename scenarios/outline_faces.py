@@ -31,6 +31,7 @@ from estimator.camera.files import load_camera, with_folder_body_mask
 from estimator.fileio import read_png
 from estimator.surround.analyzer import SurroundAnalyzer
 from estimator.surround.detection import DetectorConfig
+from scenarios.benchmarks import true_motion
 from scenarios.detection_metrics import (
     BAND_NAMES,
     EGO_MOVING_MPS,
@@ -39,7 +40,7 @@ from scenarios.detection_metrics import (
     point_footprint_distance,
 )
 from scenarios.runner import GATE_M, gt_evaluation_set
-from sim.drive import load_groundtruth
+from sim.drive import DriveError, load_groundtruth
 
 
 def face_depths(outline_xy: np.ndarray, footprint_xy: np.ndarray) -> tuple[float, float]:
@@ -73,19 +74,16 @@ def drive_faces(drive_dir: Path, every: int = 1, max_range_m: float = 25.0) -> l
     box's centre error [m] against the footprint's centre (NaN without a box)."""
     drive_dir = Path(drive_dir)
     if every < 1:
-        raise ValueError(f"every must be >= 1, got {every}")
+        raise ValueError(f"--every must be >= 1, got {every}")
+    gt = load_groundtruth(drive_dir)  # DriveError: not a complete rendered drive
     camera, mount = load_camera(drive_dir / "camera.yaml")
-    gt = load_groundtruth(drive_dir)
     sa = SurroundAnalyzer(with_folder_body_mask(camera, drive_dir), mount, DetectorConfig())
     out = []
     for k, g in enumerate(gt):
         image = read_png(drive_dir / "frames" / f"{k:06d}.png")
-        m = g["motion_from_prev"]
-        x = np.r_[m["V_mps"], m["W_rps"], m["A_rad"]] if m else np.zeros(9)
+        x, dt = true_motion(g)
         ego = g["ego"]
-        sf = sa.step(
-            k, g["t_s"], image, x, m["dt_s"] if m else 0.0, ego["speed_mps"], ego["yaw_rate_rps"]
-        )
+        sf = sa.step(k, g["t_s"], image, x, dt, ego["speed_mps"], ego["yaw_rate_rps"])
         if sf is None or k % every or ego["speed_mps"] <= EGO_MOVING_MPS:
             continue
         vehicles = gt_evaluation_set(g, max_range_m)[0]
@@ -128,7 +126,7 @@ def summary(records: list[dict]) -> dict:
     side = np.array([r["side_m"] for r in records], float)
     end = np.array([r["end_m"] for r in records], float)
     box = np.array([r["box_centre_m"] for r in records], float)
-    bands = band_labels(np.column_stack([rng, np.zeros(len(rng))])) if len(rng) else rng
+    bands = band_labels(np.column_stack([rng, np.zeros(len(rng))]))
 
     def row(keep: np.ndarray) -> dict:
         s, e = side[keep & np.isfinite(side)], end[keep & np.isfinite(end)]
@@ -153,12 +151,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("drive_dir", type=Path, help="a rendered drive (omnibench render)")
     p.add_argument("--every", type=int, default=1, help="every n-th frame")
     a = p.parse_args(argv)
-    if a.every < 1:
-        p.error(f"--every must be >= 1, got {a.every}")
-    for name in ("camera.yaml", "groundtruth.jsonl", "frames"):
-        if not (a.drive_dir / name).exists():
-            p.error(f"{a.drive_dir}: not a rendered drive (no {name})")
-    res = summary(drive_faces(a.drive_dir, a.every))
+    try:  # the checks come before any frame is analysed
+        records = drive_faces(a.drive_dir, a.every)
+    except (ValueError, DriveError) as e:
+        p.error(str(e))
+    res = summary(records)
     for band, r in res.items():
         print(
             f"{band:6s} detections {r['detections']:4d}  behind the side face p10 / median / p90 "

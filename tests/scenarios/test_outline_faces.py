@@ -74,7 +74,7 @@ def test_a_rendered_dense_drive(tmp_path):
 
 @pytest.mark.parametrize(
     ("args", "message"),
-    [(["--every", "0"], "--every must be >= 1"), ([], "not a rendered drive (no camera.yaml)")],
+    [(["--every", "0"], "--every must be >= 1"), ([], "is not a complete drive")],
 )
 def test_the_command_names_bad_input_before_any_work(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as e:
