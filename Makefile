@@ -3,6 +3,8 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 SCENARIO ?= highway-omni-near
+# processes the tests run in; a test file stays in one (its module fixtures are shared)
+TEST_WORKERS ?= 2
 export PYOPENGL_PLATFORM := osmesa
 
 .PHONY: setup demo test test-deps bench clean
@@ -29,7 +31,7 @@ test-deps:
 test: $(STAMP) test-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 bench: $(STAMP)
 	$(VENV)/bin/omnibench bench render
