@@ -32,6 +32,7 @@ from estimator.surround.analyzer import SurroundAnalyzer
 from estimator.surround.detection import DEFAULT_DETECTOR, DETECTOR_METHODS, DetectorConfig
 from scenarios.config import load_scenario
 from sim.drive import load_groundtruth, render_drive
+from sim.machine import machine_info
 
 DETECT_BENCH_SCENARIO = "dense-exit-omni-near"  # the drive `bench_detect` times
 
@@ -58,7 +59,7 @@ def bench_detect(
     time (one core: about the wall time), the median ms of each stage (``stages_ms``:
     warps, score, blobs, refine, track; `SurroundAnalyzer.stage_seconds`) and how many
     vehicles it saw (``vehicles_in_range``: vehicle-frames within the detection range, per
-    frame).
+    frame) and on what (``machine``, `sim.machine.machine_info`).
 
     n_frames: frames after the first (None: the whole drive; the first of them warms up,
     so n_frames - 1 are timed); scenario: a library name or a scenario file; detector: a
@@ -131,6 +132,7 @@ def bench_detect(
         "width": cam.width,
         "height": cam.height,
         "camera": camera,
+        "machine": machine_info(),
     }
 
 
@@ -153,7 +155,7 @@ def bench_estimate(
     Returns bench, ms_per_frame, p90_ms_per_frame (wall clock), cpu_ms_per_frame (median
     process CPU time: what one dedicated core would take), frames, scenario, camera,
     width, height, speed_error_pct (median |error| of the forward speed), blas_threads,
-    repeat and passes (each pass's median and p90).
+    repeat, passes (each pass's median and p90) and machine (`sim.machine.machine_info`).
     """
     from estimator.egomotion.baselines import make_estimator
     from estimator.recording import read_can_csv, read_timestamps_csv
@@ -211,4 +213,5 @@ def bench_estimate(
         "height": cam.height,
         "speed_error_pct": res["speed_error_pct"],
         "blas_threads": res["blas_threads"],
+        "machine": machine_info(),
     }

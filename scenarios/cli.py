@@ -114,6 +114,7 @@ def bench_render(
     """Frames/s of the full omni frame production (render, ray map, ids, range, every
     sensor effect) of a highway, per renderer, with a breakdown by stage."""
     from sim.bench import bench_render as run
+    from sim.machine import describe
 
     if shadows and renderer != ["plane"]:
         raise typer.BadParameter("--shadows needs --renderer plane alone", param_hint="--shadows")
@@ -134,7 +135,8 @@ def bench_render(
             f"{res['frames_per_s']:.2f} frames/s "
             f"({res['ms_per_frame']:.0f} ms/frame median, p90 {res['ms_p90']:.0f}, CPU "
             f"{res['cpu_ms_per_frame']:.0f} ms/frame, over {res['frames']} frames, "
-            f"{res['width']}x{res['height']}, {res['vehicles']} vehicles; ms: {stages})"
+            f"{res['width']}x{res['height']}, {res['vehicles']} vehicles; ms: {stages}; "
+            f"on {describe(res['machine'])})"
         )
     if as_json:
         first = results[renderer[0]]
@@ -577,6 +579,7 @@ def bench_estimate(
     from scenarios.benchmarks import bench_estimate as run_rendered
     from scenarios.config import ScenarioError
     from sim.drive import DriveError
+    from sim.machine import describe
 
     if repeat < 1:
         _fail(f"--repeat must be 1 or more, got {repeat}")
@@ -604,7 +607,7 @@ def bench_estimate(
     console.print(
         f"estimate (direct, synthetic road, {camera}): {syn['ms_per_frame']:.1f} ms/frame "
         f"median, {syn['p90_ms_per_frame']:.1f} p90 (CPU {syn['cpu_ms_per_frame']:.1f} median) "
-        f"over {syn['frames']} frames"
+        f"over {syn['frames']} frames; on {describe(res['machine'])}"
     )
     if as_json:
         print(json.dumps(res))
@@ -629,6 +632,7 @@ def bench_detect_cmd(
     dense exit: the library's densest traffic around the car)."""
     from estimator.surround.detection import DETECTOR_METHODS
     from scenarios.benchmarks import bench_detect
+    from sim.machine import describe
 
     if detector not in DETECTOR_METHODS:
         _fail(f"--detector {detector!r}: choose one of {', '.join(DETECTOR_METHODS)}")
@@ -649,7 +653,7 @@ def bench_detect_cmd(
         + (f" (each frame's fastest of {repeat} passes)" if repeat > 1 else "")
         + "; by stage (median): "
         + ", ".join(f"{k} {v:.1f}" for k, v in res["stages_ms"].items())
-        + " ms"
+        + f" ms; on {describe(res['machine'])}"
     )
     if as_json:
         print(json.dumps(res))

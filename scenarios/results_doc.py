@@ -22,6 +22,7 @@ from typing import Any
 from scenarios.history import git_commit
 from scenarios.regression import BaselineError, read_summary
 from scenarios.suite import DEFAULT_DETECTOR, ROLE_MEANING
+from sim.machine import describe, machines_line
 
 # (flattened metrics.json key, column head, format)
 EGO_COLUMNS = (
@@ -169,6 +170,8 @@ def suite_section(summary: dict[str, Any]) -> list[str]:
         f"Run `{summary.get('run_id')}`, commit `{summary.get('commit')}`{dirty}, finished "
         f"{summary.get('finished_at')}: `omnibench suite {summary.get('suite')} --out DIR`.",
         "",
+        machines_line(summary.get("machine"), summary.get("render_machines")),
+        "",
     ]
     key_heads = ["drive", "camera", "estimator", "seed", "frames"]
 
@@ -257,6 +260,7 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
                     f"{q['ms_per_frame']:.1f} / {q['p90_ms_per_frame']:.1f}" for q in r["passes"]
                 )
                 stages.append(f"- {what}: each pass's median / p90 {each} ms")
+            stages.append(f"- {what}: on {describe(b.get('machine'))}")
     heads = [
         "benchmark",
         "median [ms/frame]",
@@ -265,7 +269,12 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
         "CPU [ms/frame]",
         "frames timed",
     ]
-    lines = ["## Speed", "", "On this machine, one `omnibench bench ... --json` each.", ""]
+    lines = [
+        "## Speed",
+        "",
+        "One `omnibench bench ... --json` each, on the machine named below.",
+        "",
+    ]
     lines += _table(heads, rows) + [""]
     return lines + (stages + [""] if stages else [])
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from estimator.fileio import atomic_write, write_json, write_text
 from scenarios.suite import ROLE_MEANING, Job, Suite, Threshold
+from sim.machine import machines_line
 
 RANGE_STEP_M = 5.0  # [m] recall-by-range bin width
 BEARING_EDGES_DEG = tuple(range(-180, 181, 30))  # [deg]
@@ -558,6 +559,7 @@ def write_report(
         f"<p>run <code>{_fmt(run.get('run_id'))}</code>, commit <code>{_fmt(run.get('commit'))}"
         f"</code>, finished {_fmt(run.get('finished_at'))}; {len(outcomes)} jobs: "
         f"<b>{n_ok}</b> ok, <b>{n_err}</b> errors, <b>{n_pass}</b> passed their thresholds</p>",
+        f"<p>{html.escape(machines_line(run.get('machine'), run.get('render_machines')))}</p>",
     ]
     if suite.spec.thresholds:
         items = "".join(

@@ -37,6 +37,7 @@ from estimator.fileio import write_json, write_text
 from scenarios.executors import available_cpus, check_executor, make_executor
 from scenarios.history import History, git_commit, history_path, now_iso
 from scenarios.suite import Job, Suite, SuiteError, code_version, suite_fingerprint
+from sim.machine import machine_info
 
 DEFAULT_CACHE = Path("renders/cache")
 
@@ -189,6 +190,7 @@ def open_run(suite: Suite, out_dir: Path) -> dict[str, Any]:
         "dirty": dirty,
         "started_at": now_iso(),
         "n_jobs": len(suite.jobs),
+        "machine": machine_info(),  # what runs the jobs (`sim.machine`)
     }
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(p, run)
@@ -442,6 +444,20 @@ def _record(hist: History, run_id: str, job: Job, out_dir: Path, commit: str, re
     )
 
 
+def render_machines(drives: list[Path]) -> list[dict[str, Any]]:
+    """The distinct machines that rendered these drives (their manifests' ``machine``,
+    `sim.machine`), in the order first met; drives that record none are left out."""
+    seen: dict[str, dict[str, Any]] = {}
+    for d in drives:
+        try:
+            m = json.loads((Path(d) / "manifest.json").read_text()).get("machine")
+        except (OSError, json.JSONDecodeError):
+            continue
+        if m:
+            seen.setdefault(json.dumps(m, sort_keys=True), m)
+    return list(seen.values())
+
+
 def _finish(suite: Suite, out_dir: Path, cache: Path, run: dict, outcomes: list) -> str:
     """Fill missing per-job extras, then summary.json, junit.xml and report.html."""
     from scenarios.suite_report import write_job_extras, write_junit, write_report, write_summary
@@ -457,7 +473,12 @@ def _finish(suite: Suite, out_dir: Path, cache: Path, run: dict, outcomes: list)
             except Exception:  # a missing extra only thins the report
                 pass
     finished = now_iso()
-    info = {**run, "finished_at": finished, "cache_dir": str(cache)}
+    info = {
+        **run,
+        "finished_at": finished,
+        "cache_dir": str(cache),
+        "render_machines": render_machines([drive_of(o.job) for o in outcomes]),
+    }
     write_summary(out_dir, suite, info, outcomes)
     write_junit(out_dir, suite, outcomes, finished)
     write_report(out_dir, suite, info, outcomes, drive_of)

@@ -6,6 +6,7 @@ import numpy as np
 
 from estimator.frame_times import FrameTimes
 from sim.drive import prepare_drive
+from sim.machine import machine_info
 from sim.scenario import Scenario
 
 
@@ -26,7 +27,8 @@ def bench_render(
     time of the process per frame ``cpu_ms_per_frame`` (all its threads: with the
     stages running side by side, the work a frame takes whatever the cores), and per
     stage (`estimator.frame_times.StageClock`) its median ms in ``stages_ms`` (the motion
-    and sensor stages of a frame run beside the rendering of the next).
+    and sensor stages of a frame run beside the rendering of the next), and the machine
+    (``machine``, `sim.machine.machine_info`, with its OpenGL renderer).
     """
     total = n_frames + warmup
     sc = Scenario(
@@ -66,4 +68,5 @@ def bench_render(
         "face_px": drive.face_px,
         "shadows": shadows,
         "sensor_effects": sc.sensor.model_dump(),
+        "machine": machine_info(),  # with the OpenGL renderer that drew the frames
     }

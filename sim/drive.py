@@ -16,7 +16,8 @@ Layout of ``out/``::
     render.json         how the frames are rendered ({"renderer": ..., "face_px": ...});
                         a resume must match
     drive.mp4           the frames as a video
-    manifest.json       written last: {"complete": true, ...}
+    manifest.json       written last: {"complete": true, ...}; "machine": what rendered
+                        the frames (CPU, versions, OpenGL renderer: `sim.machine`)
 
 Every file is written atomically. An interrupted render resumes: the world is
 re-simulated (deterministic under the seed) and finished frames are skipped.
@@ -58,6 +59,7 @@ from sim.frame_renderer import (
     object_face_px,
 )
 from sim.highway import EGO_REAR_AXLE_X_M, WorldFrame, simulate
+from sim.machine import machine_info
 from sim.scenario import Scenario
 from sim.scene import (
     build_static_scene,
@@ -489,7 +491,7 @@ def render_drive(
     finally:
         drive.close()
     ms = 1000 * float(np.median(render_times)) if render_times else float("nan")
-    _finalise(out_dir, n, scenario, ms)
+    _finalise(out_dir, n, scenario, ms, machine_info() if todo else None)
     return DriveResult(out_dir, n, len(todo), ms)
 
 
@@ -575,7 +577,12 @@ def frame_groundtruth(
     return rec
 
 
-def _finalise(out_dir: Path, n: int, scenario: Scenario, render_ms: float) -> None:
+def _finalise(
+    out_dir: Path, n: int, scenario: Scenario, render_ms: float, machine: dict | None
+) -> None:
+    """groundtruth.jsonl, drive.mp4 and, last, manifest.json; render_ms: [ms] median a
+    frame; machine: what rendered the frames (`sim.machine.machine_info`; None: nothing
+    rendered now, the earlier manifest's is kept)."""
     lines = [(out_dir / "gt" / f"{frame_name(k)}.json").read_text() for k in range(n)]
     io.write_text(
         out_dir / "groundtruth.jsonl", "".join(json.dumps(json.loads(s)) + "\n" for s in lines)
@@ -585,8 +592,11 @@ def _finalise(out_dir: Path, n: int, scenario: Scenario, render_ms: float) -> No
         [out_dir / "frames" / f"{frame_name(k)}.png" for k in range(n)],
         scenario.fps,
     )
+    before = _read_manifest(out_dir)
     if not np.isfinite(render_ms):
-        render_ms = _read_manifest(out_dir).get("render_ms_per_frame")
+        render_ms = before.get("render_ms_per_frame")
+    if machine is None:
+        machine = before.get("machine")
     # written last: a folder without a complete manifest is not a finished drive
     io.write_json(
         out_dir / "manifest.json",
@@ -595,6 +605,7 @@ def _finalise(out_dir: Path, n: int, scenario: Scenario, render_ms: float) -> No
             "frames": n,
             "scenario": scenario.name,
             "render_ms_per_frame": render_ms,
+            "machine": machine,
         },
     )
 

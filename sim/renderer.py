@@ -25,6 +25,7 @@ import numpy as np
 from estimator.camera.models import CameraModel
 from estimator.synthetic import pixel_angle_rad
 from sim.gl import draw, linear_depth_m, pyrender
+from sim.machine import note_gl_context
 
 # Face directions in camera coordinates and an "up" vector for each (GL y).
 _FACE_DIRS = {
@@ -238,6 +239,7 @@ class OmniRenderer:
         self.prefilter_sigma_px = prefilter_sigma_px(camera, self.lookup.focal_px)
         self._gl_cameras = self.lookup.gl_cameras(z_near, z_far)
         self._renderer = pyrender.OffscreenRenderer(*self.lookup.window_px)
+        note_gl_context()  # the renderer recorded with the drive (`sim.machine`)
         self._R_face = {n: face_rotation(n) for n in self.lookup.faces}
         self._depth_lookup: tuple | None = None  # `_nearest_elements`, for `range_image`
 

@@ -61,6 +61,7 @@ def test_bench_detect_reports_the_median_and_p90(tmp_path):
     assert 0 < res["ms_per_frame"] <= res["p90_ms_per_frame"]
     assert res["cpu_ms_per_frame"] > 0
     assert res["scenario"] == "dense-exit-omni-near"
+    assert res["machine"]["cpu"] and res["machine"]["cpus"] >= 1  # what the times are of
     stages = res["stages_ms"]  # where a frame's time goes
     assert list(stages) == ["warps", "score", "blobs", "refine", "track"]
     assert all(v >= 0 for v in stages.values()) and stages["score"] > 0

@@ -62,6 +62,7 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     assert "`omnibench results run`" in page
     assert "commit `abc123`" in page and "check-x-1" in page
     assert "check suite" in page
+    assert "The run does not record its machines." in page
     assert "| merge-omni-far | omni-far | direct | 3 | 150 | 1.23 | 8.00 | 0.346 | 0.055 |" in page
     # the tracks over the frames where the ego car moves, then the detections' own recall;
     # a figure no job has is no column (HOTA, NaN in the one job that has it, stays)
@@ -93,6 +94,22 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
     what = "detect (dense-exit-omni-near, each frame's fastest of 2 passes)"
     assert f"| {what} | 17.0 | 19.0 |" in page
     assert f"- {what}: each pass's median / p90 18.0 / 21.0, 17.5 / 26.0 ms" in page
+    assert f"- {what}: on machine not recorded" in page
+    # the machine a bench ran on, and those a suite run's jobs and drives ran on
+    detect.write_text('{"bench": "detect", "ms_per_frame": 17.0, "machine": ' + MACHINE + "}")
+    summary = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(
+        json.dumps(summary | {"machine": {"cpu": "AMD EPYC", "cpus": 2}, "render_machines": []})
+    )
+    page = results_markdown([run], [detect], "omnibench results run")
+    assert "- detect: on AMD EPYC (2 CPUs), llvmpipe (LLVM 15.0.6, 256 bits), OpenGL 4.5" in page
+    assert "Jobs run on AMD EPYC (2 CPUs). Drives rendered on machines not recorded." in page
+
+
+MACHINE = (
+    '{"cpu": "AMD EPYC", "cpus": 2, "gl_renderer": "llvmpipe (LLVM 15.0.6, 256 bits)", '
+    '"gl_version": "4.5"}'
+)
 
 
 def _page_with(tmp_path, metrics: dict) -> tuple[str, dict]:

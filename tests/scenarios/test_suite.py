@@ -310,6 +310,12 @@ def test_tiny_suite_end_to_end(tiny_run):
     assert summary["counts"] == {
         "jobs": 2, "ok": 2, "error": 0, "pending": 0, "passed": 2, "failed_thresholds": 0,
     }  # fmt: skip
+    # the machine that ran the jobs, and the one that rendered the shared drive
+    assert summary["machine"]["cpu"] and summary["machine"]["cpus"] >= 1
+    assert [m["gl_renderer"] for m in summary["render_machines"]] != [] and all(
+        m["gl_renderer"] for m in summary["render_machines"]
+    )
+    assert "Drives rendered on" in (run / "report.html").read_text()
     cases = ET.parse(run / "junit.xml").getroot().iter("testcase")
     assert len(list(cases)) == 2
     job_dirs = [run / j["dir"] for j in summary["jobs"]]

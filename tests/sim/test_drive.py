@@ -45,6 +45,13 @@ def drive_dir(tmp_path_factory):
     return out
 
 
+def test_the_manifest_names_the_machine_that_rendered(drive_dir):
+    m = json.loads((drive_dir / "manifest.json").read_text())["machine"]
+    assert m["cpu"] and m["cpus"] >= 1 and m["opencv"] and m["numpy"]
+    # the OpenGL renderer that drew the frames (llvmpipe with OSMesa)
+    assert m["gl_renderer"] and m["gl_version"]
+
+
 def test_outputs_complete(drive_dir):
     for name in (
         "drive.mp4",
