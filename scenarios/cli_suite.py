@@ -282,14 +282,17 @@ def baseline_check(
 ) -> None:
     """Exit 1 naming each metric (recall, precision, MOTA, speed, yaw-rate and A RMSEs) worse
     than the baseline."""
-    from scenarios.regression import BaselineError, check_baseline
+    from scenarios.regression import BaselineError, check_baseline, render_note
 
     tol = _tolerance(tolerance, abs_tolerance)
     try:
         cmp = check_baseline(run_dir, tol, baselines_dir)
+        note = render_note(run_dir, baselines_dir)
     except BaselineError as e:
         _fail(str(e))
     _print_comparison(cmp, show_all, f"{run_dir} against its baseline")
+    if note:
+        print(note)
     if not cmp.ok:
         raise typer.Exit(1)
 

@@ -310,6 +310,8 @@ def update_baseline(
         "updated_at": now_iso(),
         "from_run": summary.get("run_id"),
         "commit": summary.get("commit"),
+        # what rendered its drives: another machine's renders differ (`render_note`)
+        "render_machines": summary.get("render_machines"),
         "jobs": dict(sorted(jobs.items(), key=lambda kv: kv[1]["label"])),
     }
     write_json(path, data)
@@ -336,3 +338,25 @@ def check_baseline(
             "cameras, overrides or frames); update the baseline on purpose"
         )
     return compare_jobs(base, new, tol, metrics)
+
+
+def render_note(run_dir: Path, baselines_dir: Path | None = None) -> str | None:
+    """A sentence when a run's drives were rendered on other machines than its baseline's
+    (renders are bit-identical on one machine only: docs/DESIGN.md, "Reading the
+    figures"), else None (the same machines, or either not recorded)."""
+    summary = read_summary(run_dir)
+    base = read_baseline(baseline_path(summary["suite"], baselines_dir)).get("render_machines")
+    new = summary.get("render_machines")
+    if not base or not new or _machines_key(base) == _machines_key(new):
+        return None
+    from sim.machine import describe
+
+    return (
+        f"note: the baseline's drives were rendered on {'; '.join(map(describe, base))}, "
+        f"this run's on {'; '.join(map(describe, new))}: renders differ from machine to "
+        "machine, so its figures may move within the tolerance without a change of code"
+    )
+
+
+def _machines_key(machines: list[dict]) -> list[str]:
+    return sorted(json.dumps(m, sort_keys=True) for m in machines)

@@ -15,8 +15,11 @@ from scenarios.regression import (
     check_baseline,
     compare_jobs,
     is_regression,
+    render_note,
     update_baseline,
 )
+
+MACHINE = {"cpu": "AMD EPYC", "cpus": 2, "gl_renderer": "llvmpipe (LLVM 15.0.6, 256 bits)"}
 
 TOL = Tolerance(rel=0.05, abs_=0.005)
 
@@ -96,6 +99,7 @@ def summary(run_id: str, jobs: dict[str, dict]) -> dict:
         "suite": "synthetic",
         "run_id": run_id,
         "commit": "abc",
+        "render_machines": [MACHINE],
         "jobs": [
             {"job_id": jid, "label": f"job {jid}", "status": "ok", "metrics": m}
             for jid, m in jobs.items()
@@ -130,6 +134,17 @@ def test_update_then_check_a_baseline(tmp_path):
     assert stored["jobs"]["j2"]["metrics"]["detection.precision"] is None  # NaN as null
     assert stored["from_run"] == "r1"
     assert check_baseline(run1, TOL, bdir).ok
+    # the machines that rendered the baseline's drives: a run rendered elsewhere is told so
+    assert stored["render_machines"] == [MACHINE] and render_note(run1, bdir) is None
+    other = json.loads((run1 / "summary.json").read_text())
+    other["render_machines"] = [{**MACHINE, "gl_renderer": "llvmpipe (LLVM 15.0.6, 512 bits)"}]
+    (tmp_path / "r3").mkdir()
+    (tmp_path / "r3" / "summary.json").write_text(json.dumps(other))
+    note = render_note(tmp_path / "r3", bdir)
+    assert "256 bits" in note and "512 bits" in note and "renders differ" in note
+    del other["render_machines"]  # not recorded: nothing to say
+    (tmp_path / "r3" / "summary.json").write_text(json.dumps(other))
+    assert render_note(tmp_path / "r3", bdir) is None
 
     worse = {**GOOD, "detection.recall": 0.7, "ego.speed_rmse_mps": 0.5}
     run2 = write_run(tmp_path / "r2", "r2", {"j1": worse, "j2": GOOD})

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from scenarios.regression import BASELINE_METRICS, Tolerance, check_baseline
+from scenarios.regression import BASELINE_METRICS, Tolerance, check_baseline, render_note
 from scenarios.suite import load_suite
 from scenarios.suite_runner import run_suite
 
@@ -52,5 +52,5 @@ def test_smoke_suite_holds_its_baseline(tmp_path: Path) -> None:
     ]
     assert cmp.ok, (
         f"{len(problems)} regression(s) against scenarios/baselines/smoke.json "
-        f"({TOLERANCE.describe()}):\n" + "\n".join(problems)
+        f"({TOLERANCE.describe()}):\n" + "\n".join(problems) + f"\n{render_note(run_dir) or ''}"
     )
