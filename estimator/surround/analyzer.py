@@ -23,10 +23,6 @@ the vehicle tracks that were detected within the last `max_coast_frames` frames.
 Each candidate keeps what this decision made of its track (`Detection.track_state`,
 `TRACK_STATES`), so that an evaluation can tell which rule lost a vehicle it found.
 
-Where a vehicle is expected. With `DetectorConfig.prior_threshold` set, each vehicle
-track's predicted point for the frame is handed to the detector, which marks weaker motion
-there (a hysteresis in time: a vehicle once found is followed with a lower threshold).
-
 A candidate whose ground point is hidden (car-body mask) is a bearing-only
 measurement for the tracker; once assigned to a track, its reported position is
 the track's, moved onto the measured bearing.
@@ -195,12 +191,6 @@ class SurroundAnalyzer:
             return None
         self._steps.append((np.asarray(x, float).copy(), float(dt_s)))
         steps = list(self._steps)[-(len(self._frames) - 1) :]
-        # where this frame's vehicles are expected (the vehicle tracks' predictions), for
-        # the detector's lower threshold there (`DetectorConfig.prior_threshold`)
-        prior = None
-        if self.detector.cfg.prior_threshold is not None:
-            pred = self.tracker.predicted_points(t_s, speed_mps, yaw_rate_rps)
-            prior = np.array([p for i, p in pred.items() if i in self._vehicle]).reshape(-1, 2)
         det = self.detector.detect(
             small,
             self._frames[0],
@@ -209,7 +199,6 @@ class SurroundAnalyzer:
             self._full[0],
             vehicle_mask=vehicle_mask,
             middle_full=self._full[-2] if len(self._full) > 2 else None,
-            prior_xy=prior,
         )
         cands = det.candidates
         t_track = time.perf_counter()

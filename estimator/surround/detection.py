@@ -159,12 +159,6 @@ class DetectorConfig:
     energy_k: float = 40.0  # [grey level^2] noise floor of the score's denominator
     registration_sigma_px: float = 1.4  # [px] misregistration allowed on edges (aliasing)
     score_threshold: float = 0.5  # [-] m above which a pixel is independently moving
-    # where a vehicle track expects its vehicle (`detect`'s prior_xy): m above this marks a
-    # pixel within prior_half_width_m of the prediction's bearing and at most prior_back_m
-    # nearer (None: the same threshold everywhere)
-    prior_threshold: float | None = None  # [-], 0..score_threshold
-    prior_half_width_m: float = 3.0  # [m] half-width of the sector at the prediction's range
-    prior_back_m: float = 3.0  # [m]
     # "learned": the classifier's file ("" the built-in one), p(vehicle) above which a pixel
     # is marked, and the neighbourhood whose score it sees [px, working scale]
     pixel_model: str = ""
@@ -448,11 +442,6 @@ class VehicleDetector:
             interpolation=cv2.INTER_AREA,
         )
         self._log_range_s = np.log1p(np.minimum(rng_s, 1e3))
-        # each working-scale pixel's road range [m] and bearing [rad] (the priors' sectors)
-        self._range_s = rng_s
-        xy = np.where(np.isfinite(self._road_xy), self._road_xy, 0.0).astype(np.float32)
-        xy_s = cv2.resize(xy, self.road_s.shape[::-1], interpolation=cv2.INTER_AREA)
-        self._bearing_s = np.arctan2(xy_s[..., 1], xy_s[..., 0])
         # the last frame's (features (N, F) of its analysed pixels, in row-major order, and
         # those pixels (h, w) bool) when kept (fitting the classifier)
         self.keep_features = False
@@ -549,7 +538,6 @@ class VehicleDetector:
         earlier_full: np.ndarray | None = None,
         vehicle_mask: np.ndarray | None = None,
         middle_full: np.ndarray | None = None,
-        prior_xy: np.ndarray | None = None,
     ) -> DetectionFrame:
         """Detect in ``current`` against ``earlier`` (both from `prepare`).
 
@@ -562,8 +550,6 @@ class VehicleDetector:
         the obstacle map and the tracker reach with a perfect segmentation).
         middle_full: the frame one step before the current one (full resolution, grey;
         with two or more steps): the refinement's road veto (`_refine`).
-        prior_xy: (K, 2) [m] road points (ego road frame) where vehicles are expected
-        (their tracks' predictions): there the score's threshold is `prior_threshold`.
         """
         cfg = self.cfg
         s = cfg.scale
@@ -637,13 +623,6 @@ class VehicleDetector:
             if cfg.coarse_level:
                 moving |= (up > cfg.score_threshold) & ok
                 score = np.maximum(score, up)
-        if (
-            cfg.prior_threshold is not None
-            and prior_xy is not None
-            and len(prior_xy)
-            and not learned
-        ):
-            moving |= self._near_prior(score, moving, ok, prior_xy)
         if features:
             planes = pixel_features(
                 level_features(a, fine_e, K, cfg.energy_k, sigma),
@@ -677,28 +656,6 @@ class VehicleDetector:
         return DetectionFrame(
             list(cands), nd, moving, plan, cands, score, (self.camera.width, self.camera.height)
         )
-
-    def _near_prior(
-        self, score: np.ndarray, moving: np.ndarray, ok: np.ndarray, prior_xy: np.ndarray
-    ) -> np.ndarray:
-        """(h, w) bool: pixels not yet marked whose score exceeds `prior_threshold` and
-        whose ray lies within `prior_half_width_m` of a prior point's bearing (at its range)
-        and meets the road at most `prior_back_m` nearer than it."""
-        cfg = self.cfg
-        weak = np.flatnonzero((score > cfg.prior_threshold) & ~moving & ok)
-        out = np.zeros(ok.shape, bool)
-        if not len(weak):
-            return out
-        b = self._bearing_s.ravel()[weak]
-        r = self._range_s.ravel()[weak]
-        keep = np.zeros(len(weak), bool)
-        for px, py in np.asarray(prior_xy, float):
-            rp = math.hypot(px, py)
-            half = math.atan2(cfg.prior_half_width_m, max(rp, 1.0))
-            db = (b - math.atan2(py, px) + math.pi) % (2 * math.pi) - math.pi
-            keep |= (np.abs(db) <= half) & (r >= rp - cfg.prior_back_m)
-        out.ravel()[weak[keep]] = True
-        return out
 
     def _detect_given(
         self,

@@ -481,18 +481,6 @@ class Tracker:
         track.P = F @ P @ F.T + Q
         track.P = 0.5 * (track.P + track.P.T)
 
-    def predicted_points(
-        self, t_s: float, ego_speed_mps: float, ego_yaw_rate_rps: float, lateral_mps: float = 0.0
-    ) -> dict[int, np.ndarray]:
-        """Track id -> (2,) [m] where each track's point will be at frame time t_s, in
-        that frame's ego road frame (the prediction `step` makes; the tracks unchanged)."""
-        if self._t_prev is None or not t_s > self._t_prev:
-            return {}
-        dt = float(t_s) - self._t_prev
-        G, g, _ = ego_frame_change(dt, ego_speed_mps, ego_yaw_rate_rps, lateral_mps)
-        F, _ = cv_transition(dt, self.config.accel_psd_m2ps3)
-        return {t.id: (F @ (G @ t.x + g))[:2] for t in self._tracks}
-
     def _update(self, track: Track, z: np.ndarray, R: np.ndarray, H: np.ndarray = _H) -> np.ndarray:
         # ν = z - H x⁻ ; S = H P⁻ Hᵀ + R ; K = P⁻ Hᵀ S⁻¹
         nu = z - H @ track.x

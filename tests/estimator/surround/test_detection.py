@@ -419,32 +419,3 @@ def test_road_veto_keeps_an_edge_that_moved_and_drops_road_the_road_explains():
     # unrelated texture agrees within the floor (~15 grey levels on these edges) by chance
     # at ~2 * 15 / 255 of the pixels
     assert explained[inner & edge].mean() < 0.25
-
-
-def test_a_prior_lowers_the_threshold_only_in_its_sector_and_beyond_its_range():
-    cam, mount = load_camera("omni-near")
-    cfg = DetectorConfig(prior_threshold=0.25)
-    det = VehicleDetector(cam, mount, cfg)
-    ok = det.road_s & det.valid_s
-    score = np.full(ok.shape, 0.3, np.float32)  # weak everywhere: above 0.25, below 0.5
-    moving = np.zeros(ok.shape, bool)
-    prior = np.array([[12.0, 0.0]])  # a vehicle expected 12 m ahead
-    marked = det._near_prior(score, moving, ok, prior)
-    b, r = det._bearing_s, det._range_s
-    half = np.arctan2(cfg.prior_half_width_m, 12.0)
-    inside = ok & (np.abs(b) <= half) & (r >= 12.0 - cfg.prior_back_m)
-    assert marked.sum() > 50 and not (marked & ~inside).any()
-    # well inside the sector (a margin for the working scale's averaged bearings) all marked
-    core = ok & (np.abs(b) <= 0.8 * half) & (r >= 12.0 - cfg.prior_back_m + 0.5)
-    assert core.any() and marked[core].all()
-    # the pixels that see the road 13 m ahead (in the sector), and 13 m ahead 6 m to the
-    # left (26 deg off: outside it), found from the full-resolution inverse perspective
-    xy = np.where(np.isfinite(det._road_xy), det._road_xy, 1e9)
-    for target, want in (((13.0, 0.0), True), ((13.0, 6.0), False)):
-        v, u = np.unravel_index(
-            np.argmin(np.hypot(*(xy - target).transpose(2, 0, 1))), xy.shape[:2]
-        )
-        assert marked[v // 2, u // 2] == want, target
-    # what is marked already, or scores under the prior's threshold, is left alone
-    assert not det._near_prior(score, ok.copy(), ok, prior).any()
-    assert not det._near_prior(np.full_like(score, 0.2), moving, ok, prior).any()

@@ -431,24 +431,3 @@ def test_swept_times_must_match_detections_and_be_finite():
     for bad in ([0.1, 0.1], [-0.1], [float("nan")]):
         with pytest.raises(ValueError, match="swept_s"):
             tr.step(0.0, [[1.0, 2.0]], 0.0, 0.0, swept_s=bad)
-
-
-def test_predicted_points_are_the_steps_own_prediction_and_change_nothing():
-    s, w = 12.0, 0.1
-    tr = Tracker()
-    run_scene(tr, {"M": linear([8, 3], np.array([14.0, 0.5]))}, 10, speed=s, yaw_rate=w, seed=3)
-    before = [(t.id, t.x.copy(), t.P.copy()) for t in tr.tracks]
-    t_next = 10 * DT
-    pred = tr.predicted_points(t_next, s, w)
-    assert set(pred) == {i for i, _, _ in before}
-    for i, x, P in before:  # the tracks untouched
-        (t,) = [t for t in tr.tracks if t.id == i]
-        np.testing.assert_array_equal(t.x, x)
-        np.testing.assert_array_equal(t.P, P)
-    tr.step(t_next, np.zeros((0, 2)), s, w)  # a frame without detections: the priors stand
-    rec = tr.records[-1]
-    for i, prior in zip(rec.track_ids, rec.priors, strict=True):
-        np.testing.assert_allclose(pred[i], prior[:2], rtol=0, atol=1e-12)
-    # before the first frame, or at a time not after the last: nothing to predict
-    assert Tracker().predicted_points(0.0, s, w) == {}
-    assert tr.predicted_points(t_next, s, w) == {}
