@@ -76,7 +76,8 @@ def describe(machine: dict | None) -> str:
     """One line naming a machine (`machine_info`): CPU, CPUs and OpenGL renderer."""
     if not machine:
         return "machine not recorded"
-    text = f"{machine.get('cpu', 'unknown CPU')} ({machine.get('cpus', '?')} CPUs)"
+    n = machine.get("cpus", "?")
+    text = f"{machine.get('cpu', 'unknown CPU')} ({n} CPU{'' if n == 1 else 's'})"
     if machine.get("gl_renderer"):
         text += f", {machine['gl_renderer']}, OpenGL {machine.get('gl_version', '?')}"
     return text

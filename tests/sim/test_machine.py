@@ -38,6 +38,7 @@ def test_describe_and_the_runs_sentence():
         "AMD EPYC (2 CPUs), llvmpipe (LLVM 15.0.6, 256 bits), OpenGL 4.5 (Core Profile) Mesa 22.3.6"
     )
     assert describe({"cpu": "AMD EPYC", "cpus": 2}) == "AMD EPYC (2 CPUs)"
+    assert describe({"cpu": "AMD EPYC", "cpus": 1}) == "AMD EPYC (1 CPU)"  # a one-core bench
     assert describe(None) == "machine not recorded"
     assert machines_line({"cpu": "X", "cpus": 4}, [m]) == (
         f"Jobs run on X (4 CPUs). Drives rendered on {describe(m)}."
