@@ -239,6 +239,8 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
                 if b.get("scenario")
                 else ""
             )
+            if (b.get("machine") or {}).get("cpu"):  # the same bench on two machines: two rows
+                what += f" on {b['machine']['cpu']}"
             median = r.get("ms_per_frame")
             p90 = r.get("p90_ms_per_frame", r.get("ms_p90"))
             fps = r.get("frames_per_s") or (1000.0 / median if median else None)
@@ -260,7 +262,7 @@ def bench_section(benches: list[tuple[Path, dict[str, Any]]]) -> list[str]:
                     f"{q['ms_per_frame']:.1f} / {q['p90_ms_per_frame']:.1f}" for q in r["passes"]
                 )
                 stages.append(f"- {what}: each pass's median / p90 {each} ms")
-            stages.append(f"- {what}: on {describe(b.get('machine'))}")
+            stages.append(f"- {what}: machine: {describe(b.get('machine'))}")
     heads = [
         "benchmark",
         "median [ms/frame]",

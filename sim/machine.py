@@ -75,7 +75,7 @@ def machine_info() -> dict[str, object]:
 def describe(machine: dict | None) -> str:
     """One line naming a machine (`machine_info`): CPU, CPUs and OpenGL renderer."""
     if not machine:
-        return "machine not recorded"
+        return "not recorded"
     n = machine.get("cpus", "?")
     text = f"{machine.get('cpu', 'unknown CPU')} ({n} CPU{'' if n == 1 else 's'})"
     if machine.get("gl_renderer"):

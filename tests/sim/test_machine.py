@@ -39,7 +39,7 @@ def test_describe_and_the_runs_sentence():
     )
     assert describe({"cpu": "AMD EPYC", "cpus": 2}) == "AMD EPYC (2 CPUs)"
     assert describe({"cpu": "AMD EPYC", "cpus": 1}) == "AMD EPYC (1 CPU)"  # a one-core bench
-    assert describe(None) == "machine not recorded"
+    assert describe(None) == "not recorded"
     assert machines_line({"cpu": "X", "cpus": 4}, [m]) == (
         f"Jobs run on X (4 CPUs). Drives rendered on {describe(m)}."
     )
