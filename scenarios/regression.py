@@ -347,16 +347,13 @@ def render_note(run_dir: Path, baselines_dir: Path | None = None) -> str | None:
     summary = read_summary(run_dir)
     base = read_baseline(baseline_path(summary["suite"], baselines_dir)).get("render_machines")
     new = summary.get("render_machines")
-    if not base or not new or _machines_key(base) == _machines_key(new):
+    from sim.machine import describe, machine_key
+
+    if not base or not new or sorted(map(machine_key, base)) == sorted(map(machine_key, new)):
         return None
-    from sim.machine import describe
 
     return (
         f"note: the baseline's drives were rendered on {'; '.join(map(describe, base))}, "
         f"this run's on {'; '.join(map(describe, new))}: renders differ from machine to "
         "machine, so its figures may move within the tolerance without a change of code"
     )
-
-
-def _machines_key(machines: list[dict]) -> list[str]:
-    return sorted(json.dumps(m, sort_keys=True) for m in machines)

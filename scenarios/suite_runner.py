@@ -37,7 +37,7 @@ from estimator.fileio import write_json, write_text
 from scenarios.executors import available_cpus, check_executor, make_executor
 from scenarios.history import History, git_commit, history_path, now_iso
 from scenarios.suite import Job, Suite, SuiteError, code_version, suite_fingerprint
-from sim.machine import machine_info
+from sim.machine import machine_info, machine_key
 
 DEFAULT_CACHE = Path("renders/cache")
 
@@ -55,12 +55,16 @@ def file_lock(path: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def drive_complete(drive_dir: Path, frames: int) -> bool:
-    p = Path(drive_dir) / "manifest.json"
+def _manifest(drive_dir: Path) -> dict[str, Any]:
+    """A drive's manifest.json ({} where it is missing or unreadable: not finished)."""
     try:
-        m = json.loads(p.read_text())
+        return json.loads((Path(drive_dir) / "manifest.json").read_text())
     except (OSError, json.JSONDecodeError):
-        return False
+        return {}
+
+
+def drive_complete(drive_dir: Path, frames: int) -> bool:
+    m = _manifest(drive_dir)
     return bool(m.get("complete")) and m.get("frames") == frames
 
 
@@ -449,12 +453,9 @@ def render_machines(drives: list[Path]) -> list[dict[str, Any]]:
     `sim.machine`), in the order first met; drives that record none are left out."""
     seen: dict[str, dict[str, Any]] = {}
     for d in drives:
-        try:
-            m = json.loads((Path(d) / "manifest.json").read_text()).get("machine")
-        except (OSError, json.JSONDecodeError):
-            continue
+        m = _manifest(d).get("machine")
         if m:
-            seen.setdefault(json.dumps(m, sort_keys=True), m)
+            seen.setdefault(machine_key(m), m)
     return list(seen.values())
 
 

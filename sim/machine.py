@@ -9,6 +9,7 @@ record the machine beside their figures.
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 from pathlib import Path
@@ -70,6 +71,11 @@ def machine_info() -> dict[str, object]:
         "opencv": cv2.__version__,
         **(gl_info() or {}),
     }
+
+
+def machine_key(machine: dict) -> str:
+    """A machine (`machine_info`) as a string: equal for the same machine and software."""
+    return json.dumps(machine, sort_keys=True)
 
 
 def describe(machine: dict | None) -> str:

@@ -9,6 +9,12 @@ import pytest
 
 from scenarios.results_doc import ResultsError, load_bench, record_of, results_markdown
 
+# a benchmark line's machine (`sim.machine.machine_info`), as JSON
+MACHINE = (
+    '{"cpu": "AMD EPYC", "cpus": 2, "gl_renderer": "llvmpipe (LLVM 15.0.6, 256 bits)", '
+    '"gl_version": "4.5"}'
+)
+
 
 def _summary(tmp_path, role="check"):
     run = tmp_path / "run"
@@ -107,12 +113,6 @@ def test_page_states_provenance_role_and_every_figure(tmp_path):
         "- detect on AMD EPYC: machine: AMD EPYC (2 CPUs), llvmpipe (LLVM 15.0.6, 256 bits)" in page
     )
     assert "Jobs run on AMD EPYC (2 CPUs). Drives rendered on machines not recorded." in page
-
-
-MACHINE = (
-    '{"cpu": "AMD EPYC", "cpus": 2, "gl_renderer": "llvmpipe (LLVM 15.0.6, 256 bits)", '
-    '"gl_version": "4.5"}'
-)
 
 
 def _page_with(tmp_path, metrics: dict) -> tuple[str, dict]:

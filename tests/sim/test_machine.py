@@ -45,3 +45,12 @@ def test_describe_and_the_runs_sentence():
     )
     assert machines_line({"cpu": "X", "cpus": 4}, []).endswith("rendered on machines not recorded.")
     assert machines_line(None, None) == "The run does not record its machines."
+
+
+def test_machine_key_is_the_same_for_the_same_machine_whatever_the_key_order():
+    from sim.machine import machine_key
+
+    a = {"cpu": "X", "cpus": 2, "gl_renderer": "llvmpipe (LLVM 15.0.6, 256 bits)"}
+    b = dict(reversed(list(a.items())))
+    assert machine_key(a) == machine_key(b)
+    assert machine_key(a) != machine_key({**a, "gl_renderer": "llvmpipe (LLVM 15.0.6, 512 bits)"})
